@@ -1,0 +1,127 @@
+"""One exception hierarchy for everything mer refuses.
+
+Every error says *what* was wrong, *where* (file, line, element) and *how to fix it*. The command
+line prints ``str(error)`` and exits non-zero; library callers can catch the class they care about.
+
+    MerError
+    ├── URDFError
+    │   ├── MalformedURDFError      XML syntax, missing or non-numeric attributes
+    │   ├── UnsafeURDFError         DTDs / XML entities (never resolved)
+    │   ├── BrokenReferenceError    a joint, mimic or key point names a link/joint that is not there
+    │   ├── KinematicTreeError      cycles, several roots, a link with two parents
+    │   └── UnsupportedJointError   prismatic/planar/floating joints, zero axes, missing limits
+    ├── RobotCardError              robot card (YAML) problems
+    ├── RegistryError
+    │   ├── UnknownRobotError       lists the known robots
+    │   └── RobotExistsError
+    └── MotionFormatError           motion files (CSV) that do not match the robot
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+__all__ = [
+    "MerError",
+    "URDFError",
+    "MalformedURDFError",
+    "UnsafeURDFError",
+    "BrokenReferenceError",
+    "KinematicTreeError",
+    "UnsupportedJointError",
+    "RobotCardError",
+    "RegistryError",
+    "UnknownRobotError",
+    "RobotExistsError",
+    "MotionFormatError",
+]
+
+
+class MerError(Exception):
+    """Base class: a message plus where it happened and how to fix it.
+
+    Args:
+        message: what is wrong.
+        path: the file concerned, if any.
+        line: 1-based line in ``path``, if known.
+        element: the element concerned (e.g. ``joint 'left_knee'``).
+        fix: one sentence telling the user what to do.
+    """
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        path: str | Path | None = None,
+        line: int | None = None,
+        element: str | None = None,
+        fix: str | None = None,
+    ) -> None:
+        self.message = message
+        self.path = str(path) if path is not None else None
+        self.line = line
+        self.element = element
+        self.fix = fix
+        super().__init__(self._format())
+
+    def _format(self) -> str:
+        where = ""
+        if self.path:
+            where = self.path + (f":{self.line}" if self.line else "")
+        parts = []
+        if where:
+            parts.append(where)
+        if self.element:
+            parts.append(self.element)
+        head = ": ".join(parts)
+        text = f"{head}: {self.message}" if head else self.message
+        if self.fix:
+            text += f"\n  fix: {self.fix}"
+        return text
+
+
+class URDFError(MerError):
+    """A URDF that mer cannot turn into a skeleton."""
+
+
+class MalformedURDFError(URDFError):
+    """Not well-formed XML, or an element misses a required or numeric attribute."""
+
+
+class UnsafeURDFError(URDFError):
+    """The file declares a DTD or XML entities; mer never resolves them."""
+
+
+class BrokenReferenceError(URDFError):
+    """A joint, mimic tag or key point refers to a link or joint that does not exist."""
+
+
+class KinematicTreeError(URDFError):
+    """The links and joints do not form a single tree (cycle, several roots, two parents)."""
+
+
+class UnsupportedJointError(URDFError):
+    """A joint type or joint definition the skeleton graph cannot represent."""
+
+
+class RobotCardError(MerError):
+    """A robot card (YAML) that is malformed or does not match its URDF."""
+
+
+class RegistryError(MerError):
+    """Robot registry problems."""
+
+
+class UnknownRobotError(RegistryError, KeyError):
+    """A robot name that is neither built in nor registered."""
+
+    def __str__(self) -> str:  # KeyError would otherwise repr() the message
+        return self._format()
+
+
+class RobotExistsError(RegistryError):
+    """Registering a name that is already taken."""
+
+
+class MotionFormatError(MerError):
+    """A motion file (CSV) that does not match its robot's layout."""

@@ -1,0 +1,232 @@
+"""The robot registry: name → (robot card, URDF, skeleton).
+
+Built-in robots ship inside the package (``mer_data/robots/<name>/``). User robots live under
+``$MER_HOME/robots/<name>/`` (default ``MER_HOME``: the platform's user cache folder, e.g.
+``~/.cache/mer``) and are used by name everywhere the built-ins are.
+
+Registration is atomic: the new entry is written and validated in a temporary folder beside the
+registry and renamed into place; a failure or an interruption leaves no half-written entry.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import re
+import shutil
+import sys
+import tempfile
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+
+from .errors import RegistryError, RobotCardError, RobotExistsError, UnknownRobotError
+from .robot_card import RobotCard, dump_card, load_card
+from .skeleton import Skeleton
+from .skeleton_builder import build_skeleton
+from .urdf import UrdfModel, load_urdf
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "BUILTIN_ROBOTS",
+    "Robot",
+    "mer_home",
+    "robots_dir",
+    "list_robots",
+    "load_robot",
+    "get_skeleton",
+    "write_robot",
+    "unregister_robot",
+    "validate_robot_name",
+]
+
+BUILTIN_ROBOTS: tuple[str, ...] = ("g1", "h1", "h1_2", "atlas", "oli", "tron1", "talos", "valkyrie")
+_BUILTIN_DIR = Path(__file__).resolve().parent / "robots"
+_NAME = re.compile(r"^[a-z][a-z0-9_-]{0,63}$")
+CARD_FILE = "robot.yaml"
+
+
+def mer_home() -> Path:
+    """``$MER_HOME``, else the platform's user cache folder + ``mer``."""
+    env = os.environ.get("MER_HOME")
+    if env:
+        return Path(env).expanduser()
+    if sys.platform == "win32":
+        base = Path(os.environ.get("LOCALAPPDATA", Path.home() / "AppData" / "Local"))
+        return base / "mer" / "Cache"
+    if sys.platform == "darwin":
+        return Path.home() / "Library" / "Caches" / "mer"
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "mer"
+
+
+def robots_dir() -> Path:
+    """Folder of the user robots (``$MER_HOME/robots``)."""
+    return mer_home() / "robots"
+
+
+def validate_robot_name(name: str) -> str:
+    """Names are lower-case identifiers: no path separators, no traversal out of the registry."""
+    if not isinstance(name, str) or not _NAME.match(name):
+        raise RegistryError(
+            f"invalid robot name {name!r}",
+            fix="use 1-64 characters: a lower-case letter, then lower-case letters, digits, '_' or '-'",
+        )
+    return name
+
+
+@dataclass(frozen=True)
+class Robot:
+    """A registered robot: its card, URDF and skeleton."""
+
+    name: str
+    card: RobotCard
+    urdf_path: Path
+    skeleton: Skeleton
+    builtin: bool
+
+    @property
+    def folder(self) -> Path:
+        return self.urdf_path.parent
+
+
+def _user_names() -> list[str]:
+    d = robots_dir()
+    if not d.is_dir():
+        return []
+    return sorted(p.name for p in d.iterdir() if p.is_dir() and _NAME.match(p.name) and (p / CARD_FILE).is_file())
+
+
+def known_names() -> list[str]:
+    return list(BUILTIN_ROBOTS) + [n for n in _user_names() if n not in BUILTIN_ROBOTS]
+
+
+def _folder_of(name: str) -> tuple[Path, bool]:
+    if name in BUILTIN_ROBOTS:
+        return _BUILTIN_DIR / name, True
+    validate_robot_name(name)
+    folder = robots_dir() / name
+    if (folder / CARD_FILE).is_file():
+        return folder, False
+    raise UnknownRobotError(
+        f"unknown robot {name!r}; known robots: {', '.join(known_names())}",
+        fix=f"register it with `mer robots register {name} --urdf ROBOT.urdf`",
+    )
+
+
+_cache: dict[tuple[str, float, float], Robot] = {}
+_lock = threading.Lock()
+
+
+def load_robot(name: str) -> Robot:
+    """Look a robot up by name (built-in or registered); cached per file modification time."""
+    folder, builtin = _folder_of(name)
+    card_path = folder / CARD_FILE
+    card = load_card(card_path)
+    if card.name != name:
+        raise RobotCardError(
+            f"the card is named {card.name!r} but lives in the folder of {name!r}",
+            path=card_path,
+            element="name",
+            fix=f"set `name: {name}`",
+        )
+    urdf_path = folder / card.urdf
+    key = (str(card_path), card_path.stat().st_mtime, urdf_path.stat().st_mtime if urdf_path.exists() else 0.0)
+    with _lock:
+        hit = _cache.get(key)
+    if hit is not None:
+        return hit
+    robot = Robot(name, card, urdf_path, build_skeleton(load_urdf(urdf_path), card), builtin)
+    with _lock:
+        _cache[key] = robot
+    return robot
+
+
+def get_skeleton(name: str) -> Skeleton:
+    """The skeleton of a registered robot."""
+    return load_robot(name).skeleton
+
+
+def list_robots() -> list[Robot]:
+    """All robots, built-ins first. A broken user entry is logged and skipped, not fatal."""
+    out = []
+    for name in known_names():
+        try:
+            out.append(load_robot(name))
+        except Exception as exc:  # noqa: BLE001 - one bad entry must not hide the others
+            log.warning("robot %r is broken and is skipped: %s", name, exc)
+    return out
+
+
+def _sweep_stale() -> None:
+    """Remove leftovers of interrupted registrations (``.tmp-*`` / ``.old-*`` folders)."""
+    d = robots_dir()
+    if not d.is_dir():
+        return
+    for p in d.iterdir():
+        if p.name.startswith((".tmp-", ".old-")) and p.is_dir():
+            shutil.rmtree(p, ignore_errors=True)
+
+
+def write_robot(
+    card: RobotCard, urdf_source: Path, *, force: bool = False
+) -> tuple[Robot, UrdfModel]:
+    """Validate ``card`` + URDF and install them as a user robot, atomically.
+
+    The URDF bytes are copied as they are; the card is written with ``urdf: <name>.urdf``.
+
+    Raises:
+        RegistryError: invalid or built-in name; RobotExistsError: taken and not ``force``;
+        any URDF/card error from validation (nothing is written then).
+    """
+    name = validate_robot_name(card.name)
+    if name in BUILTIN_ROBOTS:
+        raise RegistryError(
+            f"{name!r} is a built-in robot and cannot be replaced", fix="register it under another name"
+        )
+    root = robots_dir()
+    final = root / name
+    if final.exists() and not force:
+        raise RobotExistsError(
+            f"robot {name!r} is already registered (at {final})",
+            fix="pass --force to replace it, or choose another name",
+        )
+    root.mkdir(parents=True, exist_ok=True)
+    _sweep_stale()
+    tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{name}-", dir=root))
+    try:
+        urdf_name = f"{name}.urdf"
+        shutil.copyfile(urdf_source, tmp / urdf_name)
+        from dataclasses import replace
+
+        card = replace(card, urdf=urdf_name, path=str(tmp / CARD_FILE))
+        (tmp / CARD_FILE).write_text(dump_card(card))
+        # validate exactly what was written
+        written = load_card(tmp / CARD_FILE)
+        urdf = load_urdf(tmp / urdf_name)
+        build_skeleton(urdf, written)
+        for f in tmp.iterdir():  # make the content durable before it becomes visible
+            with open(f, "rb") as fh:
+                os.fsync(fh.fileno())
+        old = None
+        if final.exists():
+            old = root / f".old-{name}-{os.getpid()}"
+            os.rename(final, old)
+        os.rename(tmp, final)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return load_robot(name), urdf
+
+
+def unregister_robot(name: str) -> Path:
+    """Remove a user robot; returns the folder that was removed."""
+    if name in BUILTIN_ROBOTS:
+        raise RegistryError(f"{name!r} is a built-in robot and cannot be unregistered")
+    folder, _ = _folder_of(name)
+    trash = folder.parent / f".old-{name}-{os.getpid()}"
+    os.rename(folder, trash)  # atomic: the name disappears at once
+    shutil.rmtree(trash, ignore_errors=True)
+    return folder

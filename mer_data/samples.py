@@ -1,0 +1,127 @@
+"""Training samples and their batching: the contract between the shards and the model.
+
+A :class:`TrainingSample` is the paper's ``C = (M, g^M, g^X, eta)`` plus, when the target robot has
+motion data for the same clip, the target window itself. :func:`collate` pads a list of samples
+(robots of different node counts) into one batch of tensors with masks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+import torch
+
+from .skeleton import Skeleton
+
+__all__ = ["TrainingSample", "graph_arrays", "collate", "GRAPH_KEYS"]
+
+GRAPH_KEYS = ("parents", "offsets", "axes", "lower", "upper", "nominal", "psi", "mimic_source",
+              "mimic_multiplier", "mimic_offset", "revolute")  # fmt: skip
+
+
+@dataclass(frozen=True, eq=False)
+class TrainingSample:
+    """One training (or evaluation) sample.
+
+    Attributes:
+        reference: (T, J_ref, 9) float32 features of the reference window (origin-normalized).
+        reference_skeleton: the reference robot's skeleton (never augmented).
+        target_skeleton: the target skeleton (link-scaled when augmented).
+        joint_map: (J_target, J_ref) uint8 ``eta`` (correspondences may have been dropped).
+        target: (T, J_target, 9) float32 features of the same window on the target robot, when
+            that robot has data for the clip (unaugmented targets only); else None.
+        provenance: robot, clip, start frame, source sha256, target, augmentation index.
+    """
+
+    reference: np.ndarray
+    reference_skeleton: Skeleton
+    target_skeleton: Skeleton
+    joint_map: np.ndarray
+    target: np.ndarray | None = None
+    provenance: dict = field(default_factory=dict)
+
+
+def graph_arrays(skel: Skeleton) -> dict[str, np.ndarray]:
+    """A skeleton's graph conditions as arrays (see :data:`GRAPH_KEYS`)."""
+    J = skel.num_nodes
+    return {
+        "parents": skel.parents.astype(np.int64),
+        "offsets": skel.offsets.astype(np.float32),
+        "axes": skel.axes.astype(np.float32),
+        "lower": skel.lower.astype(np.float32),
+        "upper": skel.upper.astype(np.float32),
+        "nominal": skel.nominal.astype(np.float32),
+        "psi": skel.psi.astype(np.int64),
+        "mimic_source": np.where(skel.mimic_source >= 0, skel.mimic_source, np.arange(J)).astype(np.int64),
+        "mimic_multiplier": skel.mimic_multiplier.astype(np.float32),
+        "mimic_offset": skel.mimic_offset.astype(np.float32),
+        "revolute": skel.revolute_mask,
+    }
+
+
+def _pad_graphs(skels: Sequence[Skeleton], prefix: str) -> dict[str, torch.Tensor]:
+    B = len(skels)
+    J = max(s.num_nodes for s in skels)
+    out: dict[str, torch.Tensor] = {
+        f"{prefix}_mask": torch.zeros(B, J, dtype=torch.bool),
+        f"{prefix}_parents": torch.zeros(B, J, dtype=torch.long),  # padding hangs off the base
+        f"{prefix}_mimic_source": torch.arange(J).repeat(B, 1),
+        f"{prefix}_mimic_multiplier": torch.ones(B, J),
+        f"{prefix}_psi": torch.zeros(B, J, J, dtype=torch.long),
+    }
+    for k in ("offsets", "axes"):
+        out[f"{prefix}_{k}"] = torch.zeros(B, J, 3)
+    for k in ("lower", "upper", "nominal", "mimic_offset"):
+        out[f"{prefix}_{k}"] = torch.zeros(B, J)
+    out[f"{prefix}_revolute"] = torch.zeros(B, J, dtype=torch.bool)
+    for b, s in enumerate(skels):
+        g = graph_arrays(s)
+        n = s.num_nodes
+        out[f"{prefix}_mask"][b, :n] = True
+        out[f"{prefix}_parents"][b, :n] = torch.from_numpy(g["parents"])
+        out[f"{prefix}_parents"][b, 0] = -1
+        for k in ("offsets", "axes", "lower", "upper", "nominal", "mimic_multiplier", "mimic_offset"):
+            out[f"{prefix}_{k}"][b, :n] = torch.from_numpy(g[k])
+        out[f"{prefix}_mimic_source"][b, :n] = torch.from_numpy(g["mimic_source"])
+        out[f"{prefix}_psi"][b, :n, :n] = torch.from_numpy(g["psi"])
+        out[f"{prefix}_revolute"][b, :n] = torch.from_numpy(g["revolute"])
+    return out
+
+
+def collate(samples: Sequence[TrainingSample]) -> dict:
+    """Pad samples into a batch.
+
+    Returns tensors ``reference`` (B, T, Jr, 9), ``target`` (B, T, Jt, 9) (zeros where absent) with
+    ``has_target`` (B,), ``joint_map`` (B, Jt, Jr), and per side (``ref_*``, ``tgt_*``) the graph
+    arrays of :data:`GRAPH_KEYS` padded to the batch's node count plus a node ``mask``; padding
+    nodes hang off the base with zero offset and axis, so FK of a padded batch is valid. Also
+    ``ref_names`` / ``tgt_names`` (robot names) and ``provenance`` (list of dicts).
+    """
+    if not samples:
+        raise ValueError("cannot collate an empty list of samples")
+    T = samples[0].reference.shape[0]
+    if any(s.reference.shape[0] != T for s in samples):
+        raise ValueError("all samples of a batch must have the same number of frames")
+    refs = [s.reference_skeleton for s in samples]
+    tgts = [s.target_skeleton for s in samples]
+    batch: dict = {}
+    batch.update(_pad_graphs(refs, "ref"))
+    batch.update(_pad_graphs(tgts, "tgt"))
+    B, Jr, Jt = len(samples), batch["ref_mask"].shape[1], batch["tgt_mask"].shape[1]
+    batch["reference"] = torch.zeros(B, T, Jr, 9)
+    batch["target"] = torch.zeros(B, T, Jt, 9)
+    batch["has_target"] = torch.zeros(B, dtype=torch.bool)
+    batch["joint_map"] = torch.zeros(B, Jt, Jr)
+    for b, s in enumerate(samples):
+        jr, jt = s.reference.shape[1], s.target_skeleton.num_nodes
+        batch["reference"][b, :, :jr] = torch.from_numpy(np.asarray(s.reference, np.float32))
+        if s.target is not None:
+            batch["target"][b, :, :jt] = torch.from_numpy(np.asarray(s.target, np.float32))
+            batch["has_target"][b] = True
+        batch["joint_map"][b, :jt, :jr] = torch.from_numpy(s.joint_map.astype(np.float32))
+    batch["ref_names"] = [s.name for s in refs]
+    batch["tgt_names"] = [s.name for s in tgts]
+    batch["provenance"] = [dict(s.provenance) for s in samples]
+    return batch
