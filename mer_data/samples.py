@@ -13,6 +13,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
+from .scaling import scale_reference_positions
 from .skeleton import Skeleton
 
 __all__ = ["TrainingSample", "graph_arrays", "collate", "GRAPH_KEYS"]
@@ -90,11 +91,18 @@ def _pad_graphs(skels: Sequence[Skeleton], prefix: str) -> dict[str, torch.Tenso
     return out
 
 
+def _positions(features: np.ndarray) -> np.ndarray:
+    """(T, J, 9) features → (T, J, 3) world positions (base at 3:6, other nodes at 1:4)."""
+    f = np.asarray(features, np.float64)
+    return np.concatenate([f[:, :1, 3:6], f[:, 1:, 1:4]], axis=1)
+
+
 def collate(samples: Sequence[TrainingSample]) -> dict:
     """Pad samples into a batch.
 
     Returns tensors ``reference`` (B, T, Jr, 9), ``target`` (B, T, Jt, 9) (zeros where absent) with
-    ``has_target`` (B,), ``joint_map`` (B, Jt, Jr), and per side (``ref_*``, ``tgt_*``) the graph
+    ``has_target`` (B,), ``joint_map`` (B, Jt, Jr), ``ref_scaled_pos`` (B, T, Jr, 3) (the reference
+    node positions body-part scaled to the target, :mod:`mer_data.scaling`), and per side (``ref_*``, ``tgt_*``) the graph
     arrays of :data:`GRAPH_KEYS` padded to the batch's node count plus a node ``mask``; padding
     nodes hang off the base with zero offset and axis, so FK of a padded batch is valid. Also
     ``ref_names`` / ``tgt_names`` (robot names) and ``provenance`` (list of dicts).
@@ -114,6 +122,7 @@ def collate(samples: Sequence[TrainingSample]) -> dict:
     batch["target"] = torch.zeros(B, T, Jt, 9)
     batch["has_target"] = torch.zeros(B, dtype=torch.bool)
     batch["joint_map"] = torch.zeros(B, Jt, Jr)
+    batch["ref_scaled_pos"] = torch.zeros(B, T, Jr, 3)
     for b, s in enumerate(samples):
         jr, jt = s.reference.shape[1], s.target_skeleton.num_nodes
         batch["reference"][b, :, :jr] = torch.from_numpy(np.asarray(s.reference, np.float32))
@@ -121,6 +130,9 @@ def collate(samples: Sequence[TrainingSample]) -> dict:
             batch["target"][b, :, :jt] = torch.from_numpy(np.asarray(s.target, np.float32))
             batch["has_target"][b] = True
         batch["joint_map"][b, :jt, :jr] = torch.from_numpy(s.joint_map.astype(np.float32))
+        batch["ref_scaled_pos"][b, :, :jr] = torch.from_numpy(
+            scale_reference_positions(_positions(s.reference), s.reference_skeleton, s.target_skeleton)
+        )
     batch["ref_names"] = [s.name for s in refs]
     batch["tgt_names"] = [s.name for s in tgts]
     batch["provenance"] = [dict(s.provenance) for s in samples]
