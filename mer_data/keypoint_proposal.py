@@ -184,6 +184,30 @@ def _spec_at_node(skel, node: int) -> KeypointSpec:
     return KeypointSpec(skel.link_names[node])
 
 
+def _leg_points(leg, skel, urdf, t_root, pos):
+    """(hip node, knee node, ankle spec/pos/node, by-name?) of a leg chain.
+
+    A leg whose last joint is the knee (a point-footed leg, e.g. a quadruped's calf joint) ends in
+    a foot frame: the ankle is then the lowest fixed frame under that joint.
+    """
+    joints = leg["joints"]
+    last = joints[-1]
+    knee_named_last = bool(_NAMES["knee"].search(skel.node_names[last])) and len(joints) >= 2
+    if knee_named_last:
+        knee, by_name = last, True
+        frames = [l for l in _fixed_descendants(urdf, skel.link_names[last])[1:]]
+        foot = min(frames, key=lambda l: t_root[l][2, 3], default=None)
+        ankle = None if foot is None else (KeypointSpec(foot), t_root[foot][:3, 3], None)
+    else:
+        named = [n for n in _named(skel, joints, "knee") if n not in (joints[0], last)]
+        knee = _middle_joint(skel, named or joints[1:-1] or joints, pos, pos[joints[0]], pos[last])
+        by_name = bool(named)
+        ankle = (_spec_at_node(skel, last), pos[last], last)
+    i = joints.index(knee)
+    hip = _pivot(skel, joints[:i] or joints[:1], knee, pos)
+    return hip, knee, ankle, by_name
+
+
 def _propose_leg(out, side, leg, skel, urdf, t_root, pos) -> None:
     keys = [f"{side}_{k}" for k in ("hip", "knee", "ankle", "toe")]
     if leg is None or len(leg["joints"]) < 2:
@@ -193,16 +217,23 @@ def _propose_leg(out, side, leg, skel, urdf, t_root, pos) -> None:
     joints = leg["joints"]
     name_side = {_side_of_name(skel.node_names[n]) for n in joints} - {None}
     side_ok = name_side in (set(), {side})
-    ankle = joints[-1]
-    named_knee = [n for n in _named(skel, joints, "knee") if n not in (joints[0], ankle)]
-    knee = _middle_joint(skel, named_knee or joints[1:-1] or joints, pos, pos[joints[0]], pos[ankle])
-    knee_i = joints.index(knee)
-    hip = _pivot(skel, joints[:knee_i] or joints[:1], knee, pos)
-    conf = "high" if named_knee and side_ok else "medium"
-    for key, node, what in ((keys[0], hip, "last hip joint that is not a thigh twist"), (keys[1], knee, "knee"), (keys[2], ankle, "last leg joint")):
-        reason = f"{skel.node_names[node]} ({what}{', by name' if conf == 'high' else ', by geometry'})"
-        out[key] = KeypointProposal(key, _spec_at_node(skel, node), conf, reason, tuple(pos[node]))
-    out[keys[3]] = _toe(keys[3], ankle, skel, urdf, t_root, pos)
+    hip, knee, ankle, by_name = _leg_points(leg, skel, urdf, t_root, pos)
+    conf = "high" if by_name and side_ok else "medium"
+    how = ", by name" if conf == "high" else ", by geometry"
+    out[keys[0]] = KeypointProposal(keys[0], _spec_at_node(skel, hip), conf,
+                                    f"{skel.node_names[hip]} (last hip joint that is not a thigh twist{how})", tuple(pos[hip]))
+    out[keys[1]] = KeypointProposal(keys[1], _spec_at_node(skel, knee), conf, f"{skel.node_names[knee]} (knee{how})", tuple(pos[knee]))
+    if ankle is None:
+        out[keys[2]] = KeypointProposal(keys[2], None, "absent", "the leg ends at the knee with no foot frame")
+        out[keys[3]] = KeypointProposal(keys[3], None, "absent", "no foot")
+        return
+    spec, p, node = ankle
+    if node is None:
+        out[keys[2]] = KeypointProposal(keys[2], spec, "medium", f"foot frame {spec.link!r} (point foot)", tuple(p))
+        out[keys[3]] = KeypointProposal(keys[3], None, "absent", "point foot: no toe")
+        return
+    out[keys[2]] = KeypointProposal(keys[2], spec, conf, f"{skel.node_names[node]} (last leg joint{how})", tuple(p))
+    out[keys[3]] = _toe(keys[3], node, skel, urdf, t_root, pos)
 
 
 def _fixed_descendants(urdf: UrdfModel, link: str) -> list[str]:
@@ -245,23 +276,30 @@ def _propose_arm(out, side, arm, skel, urdf, t_root, pos, quad: bool) -> None:
         for k in keys:
             out[k] = KeypointProposal(k, None, "absent", f"no {side} arm chain found")
         return
+    if quad:  # front legs stand in for the arms: hip -> shoulder, knee -> elbow, foot -> hand
+        hip, knee, ankle, _ = _leg_points(arm, skel, urdf, t_root, pos)
+        why = " (front leg standing in for the arm)"
+        out[keys[0]] = KeypointProposal(keys[0], _spec_at_node(skel, hip), "low", f"{skel.node_names[hip]}{why}", tuple(pos[hip]))
+        out[keys[1]] = KeypointProposal(keys[1], _spec_at_node(skel, knee), "low", f"{skel.node_names[knee]}{why}", tuple(pos[knee]))
+        if ankle is None:
+            out[keys[2]] = KeypointProposal(keys[2], None, "absent", "the front leg has no foot frame")
+        else:
+            out[keys[2]] = KeypointProposal(keys[2], ankle[0], "low", f"front foot {ankle[0].link!r}{why}", tuple(ankle[1]))
+        return
     joints = arm["joints"]
     last = joints[-1]
     named_elbow = [n for n in _named(skel, joints, "elbow") if n != joints[0]]
     elbow = _middle_joint(skel, named_elbow or joints[1:] or joints, pos, pos[joints[0]], pos[last])
     i = joints.index(elbow)
     shoulder = _pivot(skel, joints[:i] or joints[:1], elbow, pos)
-    conf = "low" if quad else ("high" if named_elbow else "medium")
-    why = " (front leg standing in for the arm)" if quad else ""
-    for key, node, what in ((keys[0], shoulder, "last shoulder joint that is not an upper-arm twist"), (keys[1], elbow, "elbow")):
-        out[key] = KeypointProposal(key, _spec_at_node(skel, node), conf, f"{skel.node_names[node]} ({what}){why}", tuple(pos[node]))
+    conf = "high" if named_elbow else "medium"
+    out[keys[0]] = KeypointProposal(keys[0], _spec_at_node(skel, shoulder), conf,
+                                    f"{skel.node_names[shoulder]} (last shoulder joint that is not an upper-arm twist)", tuple(pos[shoulder]))
+    out[keys[1]] = KeypointProposal(keys[1], _spec_at_node(skel, elbow), conf, f"{skel.node_names[elbow]} (elbow)", tuple(pos[elbow]))
     # hand: a fixed hand frame under the last joint, else the last joint (if beyond the elbow)
     links = _fixed_descendants(urdf, skel.link_names[last])
     named = [l for l in links[1:] if _NAMES["hand"].search(l)]
-    if quad:
-        foot_toe = _toe(keys[2], last, skel, urdf, t_root, pos)
-        out[keys[2]] = KeypointProposal(keys[2], foot_toe.spec, "low" if foot_toe.spec else "absent", "front foot: " + foot_toe.reason, foot_toe.position)
-    elif named:
+    if named:
         best = max(named, key=lambda l: np.linalg.norm(t_root[l][:3, 3] - pos[shoulder]))
         out[keys[2]] = KeypointProposal(keys[2], KeypointSpec(best), "high", f"fixed frame {best!r}", tuple(t_root[best][:3, 3]))
     elif last != elbow:

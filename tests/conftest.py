@@ -1,0 +1,56 @@
+"""Shared fixtures: where ../shared is, an isolated MER_HOME, the robots and data."""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+ROBOTS = ("g1", "h1", "h1_2", "atlas", "oli", "tron1", "talos", "valkyrie")
+
+
+def _shared() -> Path:
+    return Path(os.environ.get("MER_SHARED", REPO.parent / "shared")).resolve()
+
+
+@pytest.fixture(scope="session")
+def shared_dir() -> Path:
+    """``../shared`` (or ``$MER_SHARED``); tests that need it skip with the reason when it is absent."""
+    d = _shared()
+    if not d.is_dir():
+        pytest.skip(f"shared data folder {d} is absent (set MER_SHARED to use another)")
+    return d
+
+
+@pytest.fixture(scope="session")
+def shared_robots(shared_dir: Path) -> Path:
+    d = shared_dir / "robots"
+    if not (d / "keypoints.reference.json").is_file():
+        pytest.skip(f"{d} has no robot files")
+    return d
+
+
+@pytest.fixture(scope="session")
+def lafan1_dir(shared_dir: Path) -> Path:
+    d = shared_dir / "data" / "lafan1"
+    if not (d / "g1").is_dir() or not (d / "h1").is_dir():
+        pytest.skip(f"LAFAN1 robot CSVs are absent from {d}")
+    return d
+
+
+@pytest.fixture(autouse=True)
+def mer_home(tmp_path_factory, monkeypatch) -> Path:
+    """Every test gets its own empty MER_HOME (user robots, caches)."""
+    home = tmp_path_factory.mktemp("mer_home")
+    monkeypatch.setenv("MER_HOME", str(home))
+    return home
+
+
+@pytest.fixture(autouse=True)
+def _quiet_third_party():
+    for name in ("yourdfpy", "trimesh", "pytorch_kinematics"):
+        logging.getLogger(name).setLevel(logging.ERROR)
+    yield
