@@ -14,7 +14,10 @@ line prints ``str(error)`` and exits non-zero; library callers can catch the cla
     ├── RegistryError
     │   ├── UnknownRobotError       lists the known robots
     │   └── RobotExistsError
-    └── MotionFormatError           motion files (CSV) that do not match the robot
+    ├── MotionFormatError           motion files (CSV) that do not match the robot
+    ├── ConfigError                 a configuration (or checkpoint config.json) the code does not match
+    └── CheckpointError             missing, corrupt or mismatched model checkpoints
+        └── UnseenRobotError        a checkpoint asked to retarget to a robot it never saw
 """
 
 from __future__ import annotations
@@ -34,6 +37,9 @@ __all__ = [
     "UnknownRobotError",
     "RobotExistsError",
     "MotionFormatError",
+    "ConfigError",
+    "CheckpointError",
+    "UnseenRobotError",
 ]
 
 
@@ -125,3 +131,15 @@ class RobotExistsError(RegistryError):
 
 class MotionFormatError(MerError):
     """A motion file (CSV) that does not match its robot's layout."""
+
+
+class ConfigError(MerError):
+    """A configuration, or a checkpoint's ``config.json``, that does not match the code."""
+
+
+class CheckpointError(MerError):
+    """A model checkpoint that is missing, corrupt, or does not match the model."""
+
+
+class UnseenRobotError(CheckpointError):
+    """A checkpoint asked to retarget to (or from) a robot it was never trained on."""
