@@ -36,7 +36,8 @@ __all__ = ["RobotCard", "KeypointSpec", "DEFAULT_BODY_PARTS", "load_card", "pars
 
 #: The standard humanoid body plan used for reference scaling (paper: body-part scaling).
 DEFAULT_BODY_PARTS: tuple[BodyPart, ...] = (
-    BodyPart("torso", "base", ("left_hip", "right_hip", "left_shoulder", "right_shoulder")),
+    BodyPart("pelvis", "base", ("left_hip", "right_hip")),
+    BodyPart("chest", "base", ("left_shoulder", "right_shoulder")),
     BodyPart("left_leg", "left_hip", ("left_knee", "left_ankle", "left_toe")),
     BodyPart("right_leg", "right_hip", ("right_knee", "right_ankle", "right_toe")),
     BodyPart("left_arm", "left_shoulder", ("left_elbow", "left_hand")),

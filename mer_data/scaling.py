@@ -4,11 +4,12 @@ For each body part ``k`` (a start point and a chain of key points, from the refe
 
     alpha_k = argmin_a  sum_j || a * l_j^ref - l_j^target ||^2  =  sum_j l_j^ref l_j^tgt / sum_j (l_j^ref)^2
 
-where ``l_j`` is the *cumulative link length* from the part's start to key point ``j``, summed along
-the kinematic tree at the zero pose (so it does not depend on the rest pose: bent G1 elbows and a
-straight Atlas arm measure the same way). The paper writes ``alpha * l_j ≈ l_j^o``; we scale the
-reference *to* the target, which is the direction that makes the scaled reference a goal the
-target can reach.
+where ``l_j`` is the cumulative *bone* length from the part's start to key point ``j``: the sum of
+the straight distances between consecutive key points of the chain at the zero pose (hip → knee →
+ankle → toe). Bone lengths do not depend on the rest pose (bent G1 elbows and a straight Atlas arm
+measure the same), and unlike summed link offsets they ignore sideways zig-zags of a joint cluster
+(H1's wide hip). The paper writes ``alpha * l_j ≈ l_j^o``; we scale the reference *to* the target,
+the direction that makes the scaled reference a goal the target can reach.
 
 Scaled positions (every frame)::
 
@@ -16,9 +17,10 @@ Scaled positions (every frame)::
     key point:  p'_j = p'_s + alpha_k * (p_j - p_s)        (s: the part's start, already scaled)
     other node: p'_n = p'_a + alpha_a * (p_n - p_a)        (a: nearest key-point/base ancestor)
 
-``alpha_root`` is fitted on the legs (hip → knee, ankle, both sides): the base height and the
-distance travelled scale with leg length. A part the target lacks falls back to ``alpha_root``, and
-``alpha_root`` to 1 when either robot has no legs.
+``alpha_root`` keeps the feet on the ground: it is the base scale for which the reference's zero
+pose, standing on the ground and scaled, puts its ankles and toes at the target's own standing
+heights (least squares). Where either robot has no feet it is the ratio of standing base heights.
+A part the target lacks falls back to ``alpha_root``.
 """
 
 from __future__ import annotations
@@ -32,33 +34,26 @@ from .skeleton import Skeleton
 __all__ = ["cumulative_lengths", "body_part_scales", "scale_reference_positions", "ROOT_PART"]
 
 ROOT_PART = "root"
-_LEGS = (("left_hip", ("left_knee", "left_ankle")), ("right_hip", ("right_knee", "right_ankle")))
-
-
-def _path_length(skel: Skeleton, start: int, node: int) -> float:
-    """Sum of link lengths from ``node`` up to ``start`` (NaN if ``start`` is not an ancestor)."""
-    total, n = 0.0, node
-    lengths = skel.link_lengths
-    while n != start:
-        if n <= 0:
-            return math.nan
-        total += lengths[n]
-        n = int(skel.parents[n])
-    return total
+_FEET = ("left_ankle", "right_ankle", "left_toe", "right_toe")
 
 
 def cumulative_lengths(skel: Skeleton, start: str, keypoints) -> dict[str, float]:
-    """``l_j`` [m] for each key point the robot has (cumulative link length from ``start``)."""
+    """``l_j`` [m]: bone length from ``start`` along the chain of ``keypoints`` (zero pose).
+
+    Key points the robot lacks are skipped (the next bone spans the gap).
+    """
     s = 0 if start == "base" else skel.keypoints.get(start, -1)
-    out = {}
     if s < 0:
-        return out
+        return {}
+    rest = skel.rest_positions
+    out, total, prev = {}, 0.0, rest[s]
     for k in keypoints:
         j = skel.keypoints.get(k, -1)
-        if j >= 0:
-            length = _path_length(skel, s, j)
-            if not math.isnan(length):
-                out[k] = length
+        if j < 0:
+            continue
+        total += float(np.linalg.norm(rest[j] - prev))
+        prev = rest[j]
+        out[k] = total
     return out
 
 
@@ -70,28 +65,38 @@ def _fit(ref: dict[str, float], tgt: dict[str, float]) -> float:
     return sum(ref[k] * tgt[k] for k in common) / den
 
 
-def _leg_lengths(skel: Skeleton) -> dict[str, float]:
-    """Cumulative hip → knee, ankle lengths of both legs (what ``alpha_root`` is fitted on)."""
-    out = {}
-    for hip, points in _LEGS:
-        out.update({f"{hip}/{k}": v for k, v in cumulative_lengths(skel, hip, points).items()})
-    return out
+def _standing(skel: Skeleton) -> np.ndarray:
+    """Zero-pose node positions with the lowest node on the ground (z = 0)."""
+    rest = skel.rest_positions
+    return rest - np.array([0.0, 0.0, rest[:, 2].min()])
 
 
 def body_part_scales(ref: Skeleton, target: Skeleton) -> dict[str, float]:
     """``alpha_k`` per body part of the reference, plus ``"root"``; NaN-free (fallbacks applied)."""
-    root = _fit(_leg_lengths(ref), _leg_lengths(target))
-    if math.isnan(root):
-        root = 1.0
-    out = {ROOT_PART: root}
     tparts = {b.name: b for b in target.body_parts}
+    parts: dict[str, float] = {}
     for part in ref.body_parts:
         tpart = tparts.get(part.name, part)
-        a = _fit(
+        parts[part.name] = _fit(
             cumulative_lengths(ref, part.start, part.keypoints),
             cumulative_lengths(target, tpart.start, tpart.keypoints),
         )
-        out[part.name] = root if math.isnan(a) else a
+    feet = [k for k in _FEET if ref.keypoints.get(k, -1) >= 0 and target.keypoints.get(k, -1) >= 0]
+    ref_stand, tgt_stand = _standing(ref), _standing(target)
+    base_h = ref_stand[0, 2]
+    root = math.nan
+    if feet and base_h > 1e-6:
+        # z of the scaled feet is affine in alpha_root with slope base_h: solve for the target's heights
+        trial = {**{k: (1.0 if math.isnan(v) else v) for k, v in parts.items()}, ROOT_PART: 1.0}
+        z1 = _scale(ref_stand, ref, trial, None)[..., 2]
+        got = np.array([z1[ref.keypoints[k]] for k in feet])
+        want = np.array([tgt_stand[target.keypoints[k], 2] for k in feet])
+        root = 1.0 + float(np.mean(want - got)) / base_h
+    if not (math.isfinite(root) and root > 0):
+        tgt_h = tgt_stand[0, 2]
+        root = tgt_h / base_h if base_h > 1e-6 and tgt_h > 1e-6 else 1.0
+    out = {ROOT_PART: root}
+    out.update({k: (root if math.isnan(v) else v) for k, v in parts.items()})
     return out
 
 
@@ -114,8 +119,11 @@ def scale_reference_positions(
     Returns:
         (..., J_ref, 3) scaled positions.
     """
-    positions = np.asarray(positions, dtype=np.float64)
     scales = scales or body_part_scales(ref, target)
+    return _scale(np.asarray(positions, dtype=np.float64), ref, scales, origin_xy)
+
+
+def _scale(positions: np.ndarray, ref: Skeleton, scales: dict[str, float], origin_xy) -> np.ndarray:
     root = scales[ROOT_PART]
     # which part each key point belongs to, and the part's start node
     part_of: dict[int, tuple[int, float]] = {}
