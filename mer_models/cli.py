@@ -12,6 +12,9 @@ from mer_data.errors import MerError
 
 from . import __version__
 from . import demo as demo_cli
+from .commands import evaluate as evaluate_cli
+from .commands import retarget as retarget_cli
+from .commands import train as train_cli
 
 log = logging.getLogger("mer")
 
@@ -25,6 +28,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     robots_cli.add_parser(sub)
     demo_cli.add_parser(sub)
+    train_cli.add_parser(sub)
+    retarget_cli.add_parser(sub)
+    evaluate_cli.add_parser(sub)
     return p
 
 

@@ -195,7 +195,7 @@ PRESETS: dict[str, RunConfig] = {
     "tiny": RunConfig(
         name="tiny",
         model=ModelConfig(hidden=48, layers=2, heads=4, cross_heads_per_condition=1, ffn=96, dropout=0.0),
-        train=TrainConfig(batch_size=8, lr=1e-3, warmup=50, opt_iters=10, save_every=200),
+        train=TrainConfig(batch_size=8, lr=1e-3, warmup=100, opt_iters=6, save_every=100),
     ),
 }
 

@@ -64,14 +64,23 @@ def gauss_newton_ik(
     *,
     iters: int = 10,
     damping: float = 1e-2,
+    chunk: int = 1024,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Refine (q (B, T, J), base_pos (B, T, 3), base_rot (B, T, 3, 3)) towards the key-point goals.
 
     Levenberg-Marquardt with a per-frame damping that shrinks after a step that lowers the
     frame's cost and grows (the step rejected) otherwise, so no frame ever gets worse. Returns the
-    refined triple; angles stay inside [lower, upper].
+    refined triple; angles stay inside [lower, upper]. Frames are independent: long motions are
+    processed ``chunk`` frames at a time to bound memory.
     """
     B, T, J = q.shape
+    if T > chunk:
+        parts = [
+            gauss_newton_ik(cfg, graph, eta, goal[:, a : a + chunk], q[:, a : a + chunk], base_pos[:, a : a + chunk],
+                            base_rot[:, a : a + chunk], iters=iters, damping=damping, chunk=chunk)
+            for a in range(0, T, chunk)
+        ]  # fmt: skip
+        return tuple(torch.cat([p[i] for p in parts], 1) for i in range(3))
     dtype, dev = q.dtype, q.device
     goals, pairs = keypoint_goals(eta.to(dtype), goal.to(dtype))
     pairs = pairs & graph.mask
