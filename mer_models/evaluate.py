@@ -30,6 +30,7 @@ from .checkpoint import Checkpoint, check_robot
 from .config import EnergyConfig, SamplerConfig
 from .inference import optimize_batch, sample_batch
 from .metrics import summarize, window_metrics
+from .optimize import DEFAULT_GN_ITERS, DEFAULT_ITERS
 
 log = logging.getLogger(__name__)
 
@@ -50,6 +51,7 @@ class EvalOptions:
         steps, guidance: sampler overrides (None: the checkpoint's).
         batch_size: windows per forward pass.
         seed: sampling noise.
+        opt_iters, opt_gn_iters: the optimisation baseline's Adam and Levenberg-Marquardt iterations.
     """
 
     split: str = "paper"
@@ -61,6 +63,8 @@ class EvalOptions:
     guidance: float | None = None
     batch_size: int = 16
     seed: int = 0
+    opt_iters: int = DEFAULT_ITERS
+    opt_gn_iters: int = DEFAULT_GN_ITERS
 
 
 def _clip_files(folder: Path) -> dict[str, Path]:
@@ -190,7 +194,7 @@ def evaluate(
                         gen = torch.Generator().manual_seed(opts.seed + a)
                         motion = sample_batch(checkpoint.model, batch, sampler, energy=energy, steps=opts.steps, generator=gen)
                     else:
-                        motion = optimize_batch(energy, batch)
+                        motion = optimize_batch(energy, batch, iters=opts.opt_iters, gn_iters=opts.opt_gn_iters)
                     for k, v in window_metrics(motion, batch).items():
                         vals.setdefault(k, []).append(v)
                 summary = summarize({k: np.concatenate(v) for k, v in vals.items()})

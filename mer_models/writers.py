@@ -136,7 +136,7 @@ def body_arrays(motion: TargetMotion) -> dict[str, np.ndarray]:
     skel = motion.skeleton
     pos, rot = motion.forward_kinematics()
     links = [j for j in range(skel.num_nodes) if skel.node_kinds[j] != "site"]
-    lrot = link_rotations(torch.from_numpy(rot), torch.from_numpy(skel.rest_rotations)).numpy()[:, links]
+    lrot = link_rotations(torch.from_numpy(rot), torch.from_numpy(np.array(skel.rest_rotations))).numpy()[:, links]
     bpos = pos[:, links]
     return {
         "body_names": np.array([skel.link_names[j] for j in links]),

@@ -111,7 +111,8 @@ def test_evaluate_prints_the_papers_table(tmp_path, capsys, micro_checkpoint):  
         _csv(data / "g1" / f"{clip}.csv", "g1", frames=120, seed=k)
         _csv(data / "h1" / f"{clip}.csv", "h1", frames=120, seed=10 + k)
     code, out, err = run(capsys, "evaluate", "--model", micro_checkpoint, "--input", data, "--source", "g1",
-                         "--targets", "g1", "h1", "tron1", "--max-windows", "2", "--steps", "2", "--save", tmp_path / "r.json")  # fmt: skip
+                         "--targets", "g1", "h1", "tron1", "--max-windows", "2", "--steps", "2", "--save", tmp_path / "r.json",
+                         "--opt-iters", "10", "--opt-gn-iters", "10")  # fmt: skip
     assert code == 0, err
     assert "in-domain" in out and "out-of-domain" in out and "E_g-mpbpe [m]" in out
     report = json.loads((tmp_path / "r.json").read_text())
@@ -121,5 +122,5 @@ def test_evaluate_prints_the_papers_table(tmp_path, capsys, micro_checkpoint):  
     assert g1_opt["metrics"]["g_mpbpe"]["mean"] < 0.02  # the baseline tracks a reachable reference
     assert g1_opt["metrics"]["gt_mpbpe"]["n"] == 2  # G1 data is the ground truth of G1 targets
     assert all(r["metrics"]["limit_violation"]["mean"] == 0 for r in report["rows"])
-    code, out, _ = run(capsys, "evaluate", "--input", data, "--targets", "tron1", "--max-windows", "1", "--json")
+    code, out, _ = run(capsys, "evaluate", "--input", data, "--targets", "tron1", "--max-windows", "1", "--json", "--opt-iters", "2", "--opt-gn-iters", "2")
     assert code == 0 and json.loads(out)["rows"][0]["method"] == "optimize"

@@ -25,6 +25,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--steps", type=int, help="sampler steps (default: the model's)")
     p.add_argument("--guidance", type=float, help="test-time energy guidance step (default: the model's)")
     p.add_argument("--batch-size", type=int, default=16)
+    p.add_argument("--opt-iters", type=int, default=None, help="Adam iterations of the optimisation baseline (default 100)")
+    p.add_argument("--opt-gn-iters", type=int, default=None, help="Levenberg-Marquardt iterations of the baseline (default 20)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--device", default="cpu")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
@@ -40,7 +42,8 @@ def cmd_evaluate(args) -> int:
     ckpt = resolve_model(args.model, args.device) if args.model else None
     methods = tuple(args.methods or (("model", "optimize") if ckpt is not None else ("optimize",)))
     opts = EvalOptions(split=args.split, stride=args.stride, max_windows=args.max_windows, methods=methods,
-                       steps=args.steps, guidance=args.guidance, batch_size=args.batch_size, seed=args.seed)  # fmt: skip
+                       steps=args.steps, guidance=args.guidance, batch_size=args.batch_size, seed=args.seed,
+                       **{k: v for k, v in {"opt_iters": args.opt_iters, "opt_gn_iters": args.opt_gn_iters}.items() if v is not None})  # fmt: skip
     report = evaluate(args.input, args.source, args.targets, checkpoint=ckpt, opts=opts,
                       progress=lambda s: print(s, file=sys.stderr))  # fmt: skip
     text = json.dumps(report, indent=2)
