@@ -41,13 +41,14 @@ def parse_numeric_csv(data: bytes, ncols: int, *, path: str = "<bytes>", what: s
     """
     if b"\r" in data:
         data = data.replace(b"\r\n", b"\n")
+    cut_short = not data.endswith(b"\n")  # a file cut mid-row has no final line end
     data = data.rstrip(b"\n\r \t")
     if not data:
         raise MotionFormatError("the file is empty (no rows)", path=path, fix="re-export or re-download the clip")
     data += b"\n"
     values = _fast(data, ncols)
     if values is None:  # something is off: find out exactly what and where
-        locate_problem(data, ncols, path=path, what=what)
+        locate_problem(data, ncols, path=path, what=what, cut_short=cut_short)
         raise AssertionError(f"{path}: fast parse failed but the exact re-scan found no problem")  # pragma: no cover
     return values
 
@@ -64,14 +65,22 @@ def _fast(data: bytes, ncols: int) -> np.ndarray | None:
         return None
     values = _fixed_point(data, buf, seps, data.count(b"."), nfields)
     if values is None:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # numpy warns when it stops early; we check the count
-            values = np.fromstring(data.replace(b"\n", b","), dtype=np.float64, sep=",")
-        if len(values) != nfields:
+        values = _fromstring(data.replace(b"\n", b","), np.float64)
+        if values is None or len(values) != nfields:
             return None
     if not np.isfinite(values).all():
         return None
     return values.reshape(nrows, ncols)
+
+
+def _fromstring(text: bytes, dtype) -> np.ndarray | None:
+    """numpy's C parser; None where it stops early (numpy warns or raises, depending on the version)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        try:
+            return np.fromstring(text, dtype=dtype, sep=",")
+        except (ValueError, DeprecationWarning):
+            return None
 
 
 def _fixed_point(data: bytes, buf: np.ndarray, seps: np.ndarray, ndots: int, nfields: int) -> np.ndarray | None:
@@ -85,10 +94,8 @@ def _fixed_point(data: bytes, buf: np.ndarray, seps: np.ndarray, ndots: int, nfi
     decimals = k - 1
     if decimals < 1 or not (buf[seps - k] == _DOT).all():
         return None
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        ints = np.fromstring(data.replace(b".", b"").replace(b"\n", b","), dtype=np.int64, sep=",")
-    if len(ints) != nfields or (np.abs(ints) >= _MAX_EXACT).any():
+    ints = _fromstring(data.replace(b".", b"").replace(b"\n", b","), np.int64)
+    if ints is None or len(ints) != nfields or (np.abs(ints) >= _MAX_EXACT).any():
         return None
     values = ints / float(10**decimals)
     zeros = np.flatnonzero(ints == 0)
@@ -98,10 +105,12 @@ def _fixed_point(data: bytes, buf: np.ndarray, seps: np.ndarray, ndots: int, nfi
     return values
 
 
-def locate_problem(data: bytes, ncols: int, *, path: str, what: str | None = None) -> None:
+def locate_problem(data: bytes, ncols: int, *, path: str, what: str | None = None, cut_short: bool = False) -> None:
     """Exact line-by-line scan: raise :class:`MotionFormatError` at the first bad line and cell.
 
-    Returns normally if every row is fine (the caller treats that as an internal error).
+    ``cut_short``: the file did not end with a line end; a short last row is then reported as a
+    truncated file rather than a wrong layout. Returns normally if every row is fine (the caller
+    treats that as an internal error).
     """
     lines = data.split(b"\n")
     if lines and lines[-1] == b"":
@@ -116,7 +125,7 @@ def locate_problem(data: bytes, ncols: int, *, path: str, what: str | None = Non
             )
         cells = line.split(b",")
         if len(cells) != ncols:
-            if i == last and len(cells) < ncols:
+            if i == last and i > 1 and cut_short and len(cells) < ncols:
                 raise MotionFormatError(
                     f"truncated last row: {len(cells)} of {ncols} values{layout}; the file ends mid-row",
                     path=path,

@@ -87,8 +87,10 @@ def walking_motion(
         ],
         axis=1,
     )
-    heading = np.stack([np.cos(yaw), np.sin(yaw)], axis=1)
-    xy = np.cumsum(speed * heading / fps, axis=0) - speed * heading[0] / fps
+    if abs(turn_rate) > 1e-9:  # the path integrated exactly: frames depend only on their time
+        xy = np.column_stack([np.sin(yaw), 1.0 - np.cos(yaw)]) * (speed / turn_rate)
+    else:
+        xy = np.column_stack([speed * t, np.zeros(F)])
     st = skeleton_tensors(skel, torch.float64)
     pos, _ = fk_skeleton(st, torch.from_numpy(q), torch.zeros(F, 3, dtype=torch.float64), base_quat=torch.from_numpy(quat))
     feet = [v for k, v in skel.keypoints.items() if v >= 0 and ("toe" in k or "ankle" in k)]

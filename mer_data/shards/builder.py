@@ -287,6 +287,7 @@ def build_shards(
             shas = {c: sha256_bytes(clips[p.robot][c].read_bytes()) for c in p.clips}
             if meta is not None and meta.part_key == _part_key(build_id, p.name, shas):
                 done_metas[p.name] = meta
+                shutil.rmtree(out / ".partial" / p.name, ignore_errors=True)  # leftovers of a crash
                 continue
         todo.append(p)
     tasks = [
@@ -294,7 +295,8 @@ def build_shards(
         for p in todo
         for c in p.clips
     ]
-    tasks.sort(key=lambda t: -os.path.getsize(t.path))  # largest first: better load balance
+    order = {p.name: i for i, p in enumerate(todo)}  # files one after another (each done early), and
+    tasks.sort(key=lambda t: (order[t.part], -os.path.getsize(t.path)))  # largest clips first in each
     total = sum(len(p.clips) for p in parts.values())
     done = total - len(tasks)
     if progress:
@@ -329,6 +331,10 @@ def build_shards(
                 report.files.append(_file_entry(p.final, meta, "built"))
     finally:
         gen.close()
+    try:
+        (out / ".partial").rmdir()  # only when empty: pieces of other shard indices may still be there
+    except OSError:
+        pass
     for name, meta in done_metas.items():
         if not any(f["name"] == parts[name].final.name for f in report.files):
             report.files.append(_file_entry(parts[name].final, meta, "up to date"))

@@ -3,7 +3,7 @@
 The card is a Hugging Face dataset card (YAML header + Markdown): licence (LAFAN1 is
 CC BY-NC-ND 4.0), provenance (the source files with their sha256), counts, the configuration and
 the command that rebuilds the set. For HDF5 sets the header declares one ``datasets`` config per
-robot so ``load_dataset(<folder or repo>, "g1")`` works.
+robot and split (``g1_train``, ``g1_eval``...), so ``load_dataset(<folder or repo>, "g1_train")`` works.
 """
 
 from __future__ import annotations
@@ -52,14 +52,11 @@ def render_card(paths: PathsLike, *, input_label: str | None = None) -> str:
         f'pretty_name: "mer training shards: LAFAN1 robot motion ({", ".join(robots)})"',
         "tags: [robotics, motion-retargeting, humanoid, lafan1, mer]",
     ]
-    if fmt == "hdf5":
+    if fmt == "hdf5":  # one config per robot and split: their rows differ in shape (nodes, samples per window)
         header.append("configs:")
         for r in robots:
-            header.append(f"- config_name: {r}")
-            header.append("  data_files:")
             for split in sorted({m.split for _, m, _ in metas if m.robot == r}, reverse=True):
-                header.append(f"  - split: {split}")
-                header.append(f'    path: "{r}-{split}-*{ext}"')
+                header += [f"- config_name: {r}_{split}", "  data_files:", f"  - split: {split}", f'    path: "{r}-{split}-*{ext}"']
     header.append("---")
 
     rows, sources = {}, []

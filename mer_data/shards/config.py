@@ -29,7 +29,8 @@ class BuildConfig:
         robots: source robots (each needs ``lafan1_columns`` in its card).
         format: ``"hdf5"`` or ``"mcap"``.
         window: frames per window (at ``out_fps``).
-        stride: frames between window starts; ``None`` = ``window`` (non-overlapping windows).
+        stride: frames between window starts, 1..window; ``None`` = ``window`` (non-overlapping
+            windows, plus a last one ending at the clip's last frame: every frame is in a window).
         fps: frame rate of the input files [Hz] (LAFAN1: 30).
         out_fps: frame rate of the windows [Hz] (paper: 30).
         split: ``"paper"``, ``"all"`` or the path of a split file (:mod:`mer_data.splits`).
@@ -81,8 +82,8 @@ class BuildConfig:
             problems.append(f"format must be one of {', '.join(FORMATS)}, got {self.format!r}")
         if not (isinstance(self.window, int) and self.window >= 3):
             problems.append(f"window must be an integer >= 3 frames, got {self.window!r}")
-        if not (isinstance(self.stride, int) and self.stride >= 1):
-            problems.append(f"stride must be an integer >= 1, got {self.stride!r}")
+        if not (isinstance(self.stride, int) and 1 <= self.stride <= max(self.window, 1)):
+            problems.append(f"stride must be an integer in 1..window (every frame in a window), got {self.stride!r}")
         if not (self.fps > 0 and self.out_fps > 0):
             problems.append(f"frame rates must be positive, got fps={self.fps}, out_fps={self.out_fps}")
         if not (isinstance(self.augment, int) and self.augment >= 0):

@@ -43,8 +43,8 @@ _WINDOW_SCHEMA = json.dumps(
 
 
 def _enc(a: np.ndarray) -> dict:
-    a = np.ascontiguousarray(a)
-    return {"dtype": a.dtype.str, "shape": list(a.shape), "base64": base64.b64encode(a.tobytes()).decode()}
+    a = np.asarray(a)  # (not ascontiguousarray: it turns 0-d arrays into 1-d ones)
+    return {"dtype": a.dtype.str, "shape": list(a.shape), "base64": base64.b64encode(a.tobytes(order="C")).decode()}
 
 
 def _dec(d: dict) -> np.ndarray:

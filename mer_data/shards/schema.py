@@ -147,6 +147,8 @@ class ShardMeta:
     def from_attrs(cls, attrs: dict[str, Any], path: str | Path) -> "ShardMeta":
         def get(k):
             v = attrs[k]
+            if isinstance(v, np.generic):  # HDF5 attributes come back as numpy scalars
+                v = v.item()
             return v.decode() if isinstance(v, bytes) else v
 
         try:
@@ -176,6 +178,7 @@ class ShardMeta:
             meta = cls(**kw)
             meta.shard_index, meta.num_shards, meta.window = int(meta.shard_index), int(meta.num_shards), int(meta.window)
             meta.variants, meta.num_rows, meta.fps = int(meta.variants), int(meta.num_rows), float(meta.fps)
+            meta.format_version = int(meta.format_version)
         except (KeyError, ValueError, TypeError) as exc:
             raise ShardFormatError(f"damaged shard metadata ({exc})", path=path) from None
         return meta
