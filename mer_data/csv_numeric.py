@@ -1,15 +1,17 @@
 """Fast, strict parsing of headerless numeric CSV (comma separated, one row per line).
 
-The fast path does all work in C loops: byte counts, the separator positions (numpy), and
-``np.fromstring`` on the bytes. Files written with a fixed number of decimals (LAFAN1: ``%.6f``)
-take the *fixed-point* path: the dots are removed, the digits parsed as int64 and divided by
+The fast path does all work in C loops over the bytes: numpy counts and locates the separators
+(checking that every row has ``ncols`` cells), ``bytes.translate`` drops the decimal points, and
+``np.fromstring`` parses the digits. Files written with a fixed number of decimals (LAFAN1:
+``%.6f``) take this *fixed-point* route: the digits are parsed as int64 and divided by
 ``10**decimals`` -- one correctly rounded IEEE division of two exact numbers, hence bit-identical to
-``strtod``/``np.loadtxt``. Other files take numpy's float parser.
+``strtod``/``np.loadtxt``. Other plain files take numpy's float parser.
 
-Whenever the fast path sees anything unexpected (a byte that cannot be part of a number, a row with
-the wrong number of cells, a cell it cannot parse, a non-finite value) it hands over to
-:func:`locate_problem`, an exact line-by-line re-scan in Python that names the file, the line, the
-column and the cell. That scan runs once, only for bad input.
+Whenever the fast path sees anything unexpected (another byte between the numbers, a row with the
+wrong number of cells, a cell it cannot parse, a non-finite value) it hands over to
+:func:`exact_parse`, a line-by-line scan in Python that either parses the file (unusual but valid
+spellings such as ``" 1.5"`` or ``"+2"``) or raises :class:`MotionFormatError` naming the file, the
+line, the column and the cell. That slow scan runs only for such files.
 """
 
 from __future__ import annotations
@@ -21,10 +23,11 @@ import numpy as np
 
 from .errors import MotionFormatError
 
-__all__ = ["parse_numeric_csv", "locate_problem"]
+__all__ = ["parse_numeric_csv", "exact_parse"]
 
 _COMMA, _NL, _DOT, _MINUS = 44, 10, 46, 45
 _MAX_EXACT = 2**53
+_DROP_DOTS = bytes.maketrans(b"\n", b",")
 
 
 def parse_numeric_csv(data: bytes, ncols: int, *, path: str = "<bytes>", what: str | None = None) -> np.ndarray:
@@ -48,22 +51,21 @@ def parse_numeric_csv(data: bytes, ncols: int, *, path: str = "<bytes>", what: s
     data += b"\n"
     values = _fast(data, ncols)
     if values is None:  # something is off: find out exactly what and where
-        locate_problem(data, ncols, path=path, what=what, cut_short=cut_short)
-        raise AssertionError(f"{path}: fast parse failed but the exact re-scan found no problem")  # pragma: no cover
+        values = exact_parse(data, ncols, path=path, what=what, cut_short=cut_short)
     return values
 
 
 def _fast(data: bytes, ncols: int) -> np.ndarray | None:
-    nrows = data.count(b"\n")
-    nfields = nrows * ncols
-    if data.count(b",") != nrows * (ncols - 1):
-        return None
     buf = np.frombuffer(data, np.uint8)
-    seps = np.flatnonzero((buf == _COMMA) | (buf == _NL))
-    # exactly nrows newlines, and every ncols-th separator is one of them: every row has ncols cells
+    nrows = int(np.count_nonzero(buf == _NL))
+    nfields = nrows * ncols
+    if int(np.count_nonzero(buf == _COMMA)) != nrows * (ncols - 1):
+        return None
+    seps = np.flatnonzero(buf <= _COMMA)  # ',' and '\n' -- and any other low byte, which fails below
+    # only commas and newlines, and every ncols-th separator a newline: every row has ncols cells
     if len(seps) != nfields or not (buf[seps[ncols - 1 :: ncols]] == _NL).all():
         return None
-    values = _fixed_point(data, buf, seps, data.count(b"."), nfields)
+    values = _fixed_point(data, buf, seps, nfields)
     if values is None:
         values = _fromstring(data.replace(b"\n", b","), np.float64)
         if values is None or len(values) != nfields:
@@ -83,20 +85,19 @@ def _fromstring(text: bytes, dtype) -> np.ndarray | None:
             return None
 
 
-def _fixed_point(data: bytes, buf: np.ndarray, seps: np.ndarray, ndots: int, nfields: int) -> np.ndarray | None:
+def _fixed_point(data: bytes, buf: np.ndarray, seps: np.ndarray, nfields: int) -> np.ndarray | None:
     """Every cell ``[-]digits.digits`` with the same number of decimals -> exact int64 route."""
-    if ndots != nfields or (np.diff(seps, prepend=-1) > 21).any():
-        return None
     first_dot = np.flatnonzero(buf[: seps[0]] == _DOT)
     if len(first_dot) != 1:
         return None
     k = int(seps[0]) - int(first_dot[0])  # separator minus dot position = decimals + 1
     decimals = k - 1
-    if decimals < 1 or not (buf[seps - k] == _DOT).all():
+    # one dot per cell, each exactly `decimals` before the cell's end
+    if decimals < 1 or int(np.count_nonzero(buf == _DOT)) != nfields or not (buf[seps - k] == _DOT).all():
         return None
-    ints = _fromstring(data.replace(b".", b"").replace(b"\n", b","), np.int64)
+    ints = _fromstring(data.translate(_DROP_DOTS, b"."), np.int64)
     if ints is None or len(ints) != nfields or (np.abs(ints) >= _MAX_EXACT).any():
-        return None
+        return None  # (numpy saturates int64 overflow, which the bound catches)
     values = ints / float(10**decimals)
     zeros = np.flatnonzero(ints == 0)
     if len(zeros):  # "-0.000000" is -0.0, as strtod reads it
@@ -105,24 +106,25 @@ def _fixed_point(data: bytes, buf: np.ndarray, seps: np.ndarray, ndots: int, nfi
     return values
 
 
-def locate_problem(data: bytes, ncols: int, *, path: str, what: str | None = None, cut_short: bool = False) -> None:
-    """Exact line-by-line scan: raise :class:`MotionFormatError` at the first bad line and cell.
+def exact_parse(
+    data: bytes, ncols: int, *, path: str, what: str | None = None, cut_short: bool = False
+) -> np.ndarray:
+    """Line-by-line parse with Python's ``float``: the values, or :class:`MotionFormatError` at the
+    first bad line and cell.
 
     ``cut_short``: the file did not end with a line end; a short last row is then reported as a
-    truncated file rather than a wrong layout. Returns normally if every row is fine (the caller
-    treats that as an internal error).
+    truncated file rather than a wrong layout.
     """
     lines = data.split(b"\n")
     if lines and lines[-1] == b"":
         lines.pop()
     layout = f" ({what})" if what else ""
     last = len(lines)
+    out = np.empty((last, ncols))
     for i, raw in enumerate(lines, start=1):
         line = raw.rstrip(b"\r")
         if not line.strip():
-            raise MotionFormatError(
-                "blank line inside the data", path=path, line=i, fix="remove the blank line"
-            )
+            raise MotionFormatError("blank line inside the data", path=path, line=i, fix="remove the blank line")
         cells = line.split(b",")
         if len(cells) != ncols:
             if i == last and i > 1 and cut_short and len(cells) < ncols:
@@ -158,3 +160,5 @@ def locate_problem(data: bytes, ncols: int, *, path: str, what: str | None = Non
                     element=f"column {j}",
                     fix="repair or drop the frames with NaN/inf (the source motion has gaps)",
                 )
+            out[i - 1, j - 1] = v
+    return out

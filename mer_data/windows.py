@@ -33,7 +33,7 @@ from .skeleton import Skeleton
 
 __all__ = ["window_starts", "WindowBatch", "make_windows", "window_features", "stored_arrays", "stored_from_features"]
 
-_BATCH_FRAMES = 16384  # frames per FK call (bounds memory on long clips)
+_BATCH_FRAMES = 1920  # frames per FK call: small batches stay in cache (~20% faster than 16k)
 
 
 def window_starts(num_frames: int, window: int, stride: int) -> np.ndarray:

@@ -73,6 +73,9 @@ def test_fast_parser_is_bit_identical_to_loadtxt_on_varied_formats():
         assert got.tobytes() == ref.tobytes(), fmt
     neg = parse_numeric_csv(b"-0.000000,1.000000\n", 2)
     assert np.signbit(neg[0, 0])
+    # unusual but valid spellings go through the exact line-by-line route
+    odd = parse_numeric_csv(b" 1.5,+2,3e-1\n4, 5 ,-6.25\n", 3)
+    assert odd.tolist() == [[1.5, 2.0, 0.3], [4.0, 5.0, -6.25]]
 
 
 @settings(max_examples=60, deadline=None)

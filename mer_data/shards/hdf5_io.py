@@ -5,13 +5,14 @@ Layout choices:
 * Every column is a top-level dataset whose first axis is the window, so ``datasets.load_dataset(
   "hdf5", data_files=...)`` maps each to a column (its builder turns every dataset into a column and
   requires one common first dimension; attributes are ignored).
-* ``pos`` and ``q`` (the bulk) are chunked one window per chunk: reading a sample touches
-  contiguous, independently compressed chunks (no fancy indexing). The small columns use chunks of
-  :data:`SMALL_CHUNK_ROWS` rows. Compression: LZF (fast; what h5py ships) or gzip, with shuffle.
+* The per-window arrays (``pos``, ``q``, ``base_rotvec``, ``link_scales``, ``dropped``) are chunked
+  one window per chunk: reading a sample touches a few contiguous, independently compressed chunks
+  (no fancy indexing). The scalar columns use chunks of :data:`SMALL_CHUNK_ROWS` rows.
+  Compression: LZF (fast; what h5py ships) or gzip, with shuffle.
 * Metadata are root attributes (:meth:`ShardMeta.to_attrs`); large attributes need the HDF5 1.8
   file format (``libver="v108"``).
 * Per-clip *pieces* written by the build workers have the same layout; they are merged by copying
-  the compressed chunks of ``pos``/``q`` verbatim (``read_direct_chunk``/``write_direct_chunk``).
+  the compressed per-window chunks verbatim (``read_direct_chunk``/``write_direct_chunk``).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ log = logging.getLogger(__name__)
 __all__ = ["Hdf5ShardWriter", "Hdf5Shard", "SMALL_CHUNK_ROWS"]
 
 SMALL_CHUNK_ROWS = 256
+LIBVER = "v108"
 _STR = h5py.string_dtype("utf-8")
 
 
@@ -50,7 +52,7 @@ class Hdf5ShardWriter:
         self.path = Path(path)
         self.meta = meta
         self.shapes = meta.shapes()
-        self.file = h5py.File(self.path, "w", libver="v108")
+        self.file = h5py.File(self.path, "w", libver=LIBVER)
         self.rows = 0
         filt = _filters(compression)
         for name, dtype in COLUMNS.items():
@@ -94,9 +96,10 @@ class Hdf5ShardWriter:
                 s, d = src[name], self.file[name]
                 if name in BIG_COLUMNS:
                     zeros = (0,) * (len(s.shape) - 1)
+                    sid, did = s.id, d.id
                     for i in range(n):
-                        mask, data = s.id.read_direct_chunk((i,) + zeros)
-                        d.id.write_direct_chunk((start + i,) + zeros, data, mask)
+                        mask, data = sid.read_direct_chunk((i,) + zeros)
+                        did.write_direct_chunk((start + i,) + zeros, data, mask)
                 else:
                     d[start : start + n] = s[...]
         return n
