@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import shutil
+
 import numpy as np
 import pytest
 import torch
@@ -77,3 +79,33 @@ def test_g1_travels_about_0_74_of_h1(lafan1_dir):
         den += float((h * h).sum())
     assert num / den == pytest.approx(0.74, abs=0.01)
     assert body_part_scales(get_skeleton("h1"), get_skeleton("g1"))["root"] == pytest.approx(0.798, abs=0.005)
+
+
+def _expected(lafan1_dir):
+    rows = [line.split("\t") for line in (lafan1_dir / "MANIFEST.tsv").read_text().splitlines()[1:]]
+    frames = {r[0]: int(r[1]) for r in rows}
+    windows = sum(len(window_starts(f, 60, 60)) for f in frames.values())
+    return frames, windows
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("split", ["paper", "all"])
+def test_full_g1_h1_build(lafan1_dir, tmp_path, split):
+    """The whole data: 80 clips, 529,410 frames (about 10 s per build on 2 cores)."""
+    frames, windows = _expected(lafan1_dir)
+    report = build_shards(BuildConfig(input=str(lafan1_dir), robots=("g1", "h1"), split=split), tmp_path, workers=2)
+    assert report.clips == 80 and report.frames == sum(frames.values()) == 529_410 and report.windows == windows
+    assert not report.failed and not report.short
+    names = sorted(p.name for p in tmp_path.glob("*.h5"))
+    if split == "paper":
+        assert names == ["g1-eval-00000-of-00001.h5", "g1-train-00000-of-00001.h5", "h1-eval-00000-of-00001.h5",
+                         "h1-train-00000-of-00001.h5"]  # fmt: skip
+        train = open_shard(tmp_path / "g1-train-00000-of-00001.h5").meta
+        assert sorted(s["clip"] for s in train.sources) == ["dance1_subject1", "fallAndGetUp1_subject1", "fight1_subject2"]
+        assert open_shard(tmp_path / "h1-eval-00000-of-00001.h5").meta.counts()["clips"] == 37
+    else:
+        assert names == ["g1-train-00000-of-00001.h5", "h1-train-00000-of-00001.h5"]
+    ds = ShardDataset(tmp_path, augmented=False)
+    assert len(ds.windows) == windows and len(ds.clips()) == 80
+    ds.close()
+    shutil.rmtree(tmp_path, ignore_errors=True)  # ~0.2 GB built from CC BY-NC-ND data: do not keep it around

@@ -115,7 +115,9 @@ def render_card(paths: PathsLike, *, input_label: str | None = None) -> str:
         rebuild_command(cfg, input_label),
         "```",
         "",
-        "The same inputs (same sha256) and configuration give the same build id and bit-identical windows.",
+        "The same inputs (same sha256) and configuration give the same build id, the same augmentation draws "
+        "and the same windows (bit for bit with the same mer and torch versions on the same kind of CPU; float32 "
+        "forward kinematics may differ in the last bit elsewhere).",
         "",
         "## Configuration",
         "",
