@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import uuid
 from pathlib import Path
 
 from ..errors import ShardFormatError
@@ -151,7 +152,7 @@ def write_card(out: str | Path, *, input_label: str | None = None, dest: str | P
     dest = Path(dest) if dest else Path(out) / "README.md"
     text = render_card(out, input_label=input_label)
     dest.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dest.with_name(f".{dest.name}.tmp-{os.getpid()}")
+    tmp = dest.with_name(f".{dest.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}")
     tmp.write_text(text)
     os.replace(tmp, dest)
     return dest

@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
+import uuid
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -177,7 +178,7 @@ def process_clip(ctx: BuildContext, task: ClipTask) -> ClipResult:
     }  # fmt: skip
     meta = replace(ctx.metas[task.part], part_key=key, sources=[record])
     piece.parent.mkdir(parents=True, exist_ok=True)
-    tmp = piece.with_name(f"{piece.name}.tmp-{os.getpid()}")
+    tmp = piece.with_name(f"{piece.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}")
     writer = Hdf5ShardWriter(tmp, meta, compression=cfg.compression)
     try:
         writer.append(rows)
