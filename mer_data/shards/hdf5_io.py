@@ -5,9 +5,9 @@ Layout choices:
 * Every column is a top-level dataset whose first axis is the window, so ``datasets.load_dataset(
   "hdf5", data_files=...)`` maps each to a column (its builder turns every dataset into a column and
   requires one common first dimension; attributes are ignored).
-* The per-window arrays (``pos``, ``q``, ``base_rotvec``, ``link_scales``, ``dropped``) are chunked
-  one window per chunk: reading a sample touches a few contiguous, independently compressed chunks
-  (no fancy indexing). The scalar columns use chunks of :data:`SMALL_CHUNK_ROWS` rows.
+* The large per-window arrays (``pos``, ``q``, ``link_scales``) are chunked one window per chunk:
+  reading a sample touches a few contiguous, independently compressed chunks (no fancy indexing).
+  The small columns use chunks of :data:`SMALL_CHUNK_ROWS` rows.
   Compression: LZF (fast; what h5py ships) or gzip, with shuffle.
 * Metadata are root attributes (:meth:`ShardMeta.to_attrs`); large attributes need the HDF5 1.8
   file format (``libver="v108"``).

@@ -65,8 +65,8 @@ COLUMNS: dict[str, str] = {
     "link_scales": "<f4",
     "dropped": "|b1",
 }
-#: columns stored one window per chunk (everything but a few scalars per window)
-BIG_COLUMNS = ("pos", "q", "base_rotvec", "link_scales", "dropped")
+#: columns stored one window per chunk (the large per-window arrays); the others in blocks of rows
+BIG_COLUMNS = ("pos", "q", "link_scales")
 
 
 def column_shapes(window: int, num_nodes: int, num_samples: int, max_target_nodes: int) -> dict[str, tuple[int, ...]]:
