@@ -14,7 +14,11 @@ line prints ``str(error)`` and exits non-zero; library callers can catch the cla
     ├── RegistryError
     │   ├── UnknownRobotError       lists the known robots
     │   └── RobotExistsError
-    └── MotionFormatError           motion files (CSV) that do not match the robot
+    ├── MotionFormatError           motion files (CSV) that do not match the robot
+    ├── SplitError                  a train/eval split that does not fit the clips
+    └── ShardError                  training shards
+        ├── ShardFormatError        not a shard, a damaged one, or an unsupported format version
+        └── ShardBuildError         a build that cannot start or finish (input, output folder)
 """
 
 from __future__ import annotations
@@ -34,6 +38,10 @@ __all__ = [
     "UnknownRobotError",
     "RobotExistsError",
     "MotionFormatError",
+    "SplitError",
+    "ShardError",
+    "ShardFormatError",
+    "ShardBuildError",
 ]
 
 
@@ -125,3 +133,19 @@ class RobotExistsError(RegistryError):
 
 class MotionFormatError(MerError):
     """A motion file (CSV) that does not match its robot's layout."""
+
+
+class SplitError(MerError):
+    """A train/eval split that cannot be applied to the clips at hand."""
+
+
+class ShardError(MerError):
+    """Training shard problems."""
+
+
+class ShardFormatError(ShardError):
+    """A file that is not a mer shard, is damaged, or has an unsupported format version."""
+
+
+class ShardBuildError(ShardError):
+    """A shard build that cannot start or finish (input folder, output folder, failed clips)."""
