@@ -15,6 +15,10 @@ line prints ``str(error)`` and exits non-zero; library callers can catch the cla
     │   ├── UnknownRobotError       lists the known robots
     │   └── RobotExistsError
     ├── MotionFormatError           motion files (CSV) that do not match the robot
+    ├── SplitError                  a train/eval split that does not fit the clips
+    ├── ShardError                  training shards
+    │   ├── ShardFormatError        not a shard, a damaged one, or an unsupported format version
+    │   └── ShardBuildError         a build that cannot start or finish (input, output folder)
     ├── ConfigError                 a configuration (or checkpoint config.json) the code does not match
     └── CheckpointError             missing, corrupt or mismatched model checkpoints
         └── UnseenRobotError        a checkpoint asked to retarget to a robot it never saw
@@ -40,6 +44,10 @@ __all__ = [
     "ConfigError",
     "CheckpointError",
     "UnseenRobotError",
+    "SplitError",
+    "ShardError",
+    "ShardFormatError",
+    "ShardBuildError",
 ]
 
 
@@ -143,3 +151,19 @@ class CheckpointError(MerError):
 
 class UnseenRobotError(CheckpointError):
     """A checkpoint asked to retarget to (or from) a robot it was never trained on."""
+
+
+class SplitError(MerError):
+    """A train/eval split that cannot be applied to the clips at hand."""
+
+
+class ShardError(MerError):
+    """Training shard problems."""
+
+
+class ShardFormatError(ShardError):
+    """A file that is not a mer shard, is damaged, or has an unsupported format version."""
+
+
+class ShardBuildError(ShardError):
+    """A shard build that cannot start or finish (input folder, output folder, failed clips)."""
