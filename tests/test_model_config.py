@@ -16,7 +16,7 @@ def test_paper_preset_is_the_papers_configuration():
     assert (m.hidden, m.layers, m.heads, m.ffn, m.window, m.frames) == (240, 4, 6, 1024, 31, 60)
     assert run.train.batch_size == 16
     assert run.sampler.steps <= 20
-    assert (run.train.p_mean, run.train.p_std, m.sigma_data) == (-1.2, 1.2, 0.5)
+    assert (run.train.p_mean, run.train.p_std, m.sigma_data) == (0.0, 1.5, 0.5)
 
 
 def test_unknown_preset_lists_the_known_ones():
