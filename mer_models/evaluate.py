@@ -94,24 +94,28 @@ def collect_windows(input_dir: str | Path, source: str, opts: EvalOptions) -> di
         raise MerError(f"no .csv or .csv.gz motions in {folder}", path=folder)
     split = resolve_split(opts.split, {source: list(files)})[source]
     skel = get_skeleton(source)
-    refs = {TRAIN: [], EVAL: []}
+    motions, chosen = {}, {TRAIN: [], EVAL: []}
     for clip, path in files.items():
         motion = read_lafan1_csv(path, source)
         starts = window_starts(motion.num_frames, opts.window, opts.stride)
         if len(starts) == 0:
             log.warning("%s: %d frames, shorter than a window; skipped", path, motion.num_frames)
             continue
-        wb = make_windows(motion, skel, starts, opts.window)
-        feats = window_features(wb.pos, wb.q, wb.base_rotvec, motion.fps)
-        for k, s in enumerate(starts):
-            refs[split[clip]].append({"clip": clip, "start": int(s), "reference": feats[k]})
+        motions[clip] = motion
+        chosen[split[clip]] += [(clip, int(s)) for s in starts]
     out = {}
     for dom, key in zip(DOMAINS, (TRAIN, EVAL)):
-        w = refs[key]
+        w = chosen[key]
         if opts.max_windows is not None and len(w) > opts.max_windows:
             idx = np.unique(np.linspace(0, len(w) - 1, opts.max_windows).round().astype(int))
             w = [w[i] for i in idx]
-        out[dom] = w
+        windows = []
+        for clip in dict.fromkeys(c for c, _ in w):  # clips in order; features only for chosen windows
+            starts = np.array([s for c, s in w if c == clip], np.int64)
+            wb = make_windows(motions[clip], skel, starts, opts.window)
+            feats = window_features(wb.pos, wb.q, wb.base_rotvec, motions[clip].fps)
+            windows += [{"clip": clip, "start": int(s), "reference": feats[k]} for k, s in enumerate(starts)]
+        out[dom] = windows
     return out
 
 
