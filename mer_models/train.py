@@ -21,9 +21,7 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import os
-import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,22 +30,22 @@ from typing import Any, Callable, Mapping
 import numpy as np
 import torch
 import torch.distributed as dist
+from safetensors.torch import load_file
 from torch import nn
 from torch.utils.data import DataLoader, Dataset
 
 from mer_data.errors import CheckpointError, ConfigError
 from mer_data.registry import get_skeleton
+from mer_data.rotations import axis_angle_to_matrix
 from mer_data.samples import collate
 
 from .checkpoint import CONFIG, OPTIMIZER, STATE, WEIGHTS, _read_meta, load_weights, save_checkpoint
 from .config import RunConfig, from_dict
 from .edm import denoising_loss, sample_sigma
+from .kinematics import batch_features
 from .model import Conditions, RetargetModel
 from .optimize import optimize_motion
 from .representation import normalize, transform_features
-from .kinematics import batch_features
-from mer_data.rotations import axis_angle_to_matrix
-from safetensors.torch import load_file
 
 log = logging.getLogger(__name__)
 

@@ -2,13 +2,10 @@
 
 from __future__ import annotations
 
-import math
 
-import numpy as np
 import pytest
 import torch
 
-from mer_data.samples import collate
 from mer_models.edm import loss_weight, precondition, sample_sigma
 from mer_models.kinematics import rot_z
 from mer_models.model import RetargetModel

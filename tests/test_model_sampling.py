@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 
-import pytest
 import torch
 
 from mer_models.config import EnergyConfig, SamplerConfig

@@ -3,10 +3,8 @@
 from __future__ import annotations
 
 import json
-import math
 
 import numpy as np
-import pytest
 import torch
 
 from mer_data.motion_io import read_lafan1_csv
