@@ -25,7 +25,10 @@ SAMPLERS = {"heun": sample_heun, "euler": sample_euler, "ancestral": sample_eule
 
 
 def initial_noise(shape, sigma_max: float, generator: torch.Generator | None, device) -> torch.Tensor:
-    return torch.randn(shape, generator=generator, device=device) * sigma_max
+    """``sigma_max * N(0, I)`` drawn on the generator's device (so a CPU seed gives the same noise
+    on any device), then moved to ``device``."""
+    gdev = generator.device if generator is not None else device
+    return (torch.randn(shape, generator=generator, device=gdev) * sigma_max).to(device)
 
 
 def sample_conditions(
