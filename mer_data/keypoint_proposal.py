@@ -80,7 +80,6 @@ def propose_keypoints(urdf: UrdfModel, locked: dict[str, float] | None = None) -
     link_node = _link_nodes(urdf, skel)
 
     # ---- limbs: unshared joint chains to the leaf links ----------------------------------------
-    parents_of_link = {j.child: j.parent for j in urdf.joints}
     has_child = {j.parent for j in urdf.joints}
     leaves = [l for l in urdf.links if l not in has_child and l != urdf.root]
     chains: dict[str, list[int]] = {}

@@ -16,7 +16,8 @@ import numpy as np
 from .errors import BrokenReferenceError, RobotCardError, UnsupportedJointError
 from .robot_card import RobotCard
 from .skeleton import KEYPOINTS, Skeleton
-from .urdf import UrdfJoint, UrdfModel, _did_you_mean
+from .urdf import UrdfJoint, UrdfModel
+from .urdf_checks import did_you_mean
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +62,7 @@ def _resolve_values(urdf: UrdfModel, card: RobotCard) -> tuple[dict[str, float],
                 f"locked joint {name!r} is not in {urdf.path}",
                 path=card_path,
                 element=f"locked.{name}",
-                fix=_did_you_mean(name, by_name, "check the joint name in the URDF"),
+                fix=did_you_mean(name, by_name, "check the joint name in the URDF"),
             )
         j = by_name[name]
         if j.type not in ("revolute", "continuous", "prismatic"):
@@ -210,7 +211,7 @@ def build_skeleton(urdf: UrdfModel, card: RobotCard) -> Skeleton:
                 f"key point {key!r} names link {spec.link!r}, which is not in {urdf.path}",
                 path=card.path,
                 element=f"keypoints.{key}",
-                fix=_did_you_mean(spec.link, urdf.links, "name a link of the URDF"),
+                fix=did_you_mean(spec.link, urdf.links, "name a link of the URDF"),
             )
         t = t_root[spec.link]
         p = t[:3, :3] @ np.asarray(spec.offset) + t[:3, 3]
@@ -262,7 +263,7 @@ def build_skeleton(urdf: UrdfModel, card: RobotCard) -> Skeleton:
                 f"nominal angle for {name!r}, which is not a moving joint of this skeleton",
                 path=card.path,
                 element=f"nominal.{name}",
-                fix=_did_you_mean(name, [n for n, k in zip(names, kinds) if k == "revolute"], "name a moving joint"),
+                fix=did_you_mean(name, [n for n, k in zip(names, kinds) if k == "revolute"], "name a moving joint"),
             )
         j = names.index(name)
         if not lo_a[j] - _LIMIT_SLACK <= value <= hi_a[j] + _LIMIT_SLACK:

@@ -12,28 +12,18 @@ from __future__ import annotations
 
 import io
 import logging
-import math
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from lxml import etree
 
-from .errors import (
-    BrokenReferenceError,
-    KinematicTreeError,
-    MalformedURDFError,
-    UnsafeURDFError,
-    UnsupportedJointError,
-)
+from .errors import MalformedURDFError
+from .urdf_checks import JOINT_TYPES, CheckedJoint, check_joints, check_links, check_tree, parse_xml
 
 log = logging.getLogger(__name__)
 
 __all__ = ["UrdfJoint", "UrdfModel", "load_urdf", "parse_urdf_bytes", "JOINT_TYPES"]
-
-JOINT_TYPES = ("revolute", "continuous", "prismatic", "fixed", "floating", "planar")
-_UNSAFE = re.compile(rb"<!\s*(DOCTYPE|ENTITY)", re.IGNORECASE)
 
 
 @dataclass(frozen=True)
@@ -57,17 +47,6 @@ class UrdfJoint:
     lower: float | None
     upper: float | None
     mimic: tuple[str, float, float] | None
-    line: int
-
-
-@dataclass(frozen=True)
-class _Checked:
-    """A joint whose structure has been validated; values are read later by yourdfpy."""
-
-    name: str
-    type: str
-    parent: str
-    child: str
     line: int
 
 
@@ -134,285 +113,22 @@ def load_urdf(path: str | Path) -> UrdfModel:
     return parse_urdf_bytes(data, str(path))
 
 
-def _line_of(data: bytes, offset: int) -> int:
-    return data.count(b"\n", 0, offset) + 1
-
-
-def _floats(text: str | None, n: int, *, what: str, path: str, line: int, element: str) -> np.ndarray:
-    if text is None:
-        raise MalformedURDFError(f"missing {what}", path=path, line=line, element=element)
-    parts = text.split()
-    try:
-        vals = [float(p) for p in parts]
-    except ValueError:
-        raise MalformedURDFError(
-            f"{what}={text!r} is not {n} numbers",
-            path=path,
-            line=line,
-            element=element,
-            fix=f"write {what} as {n} space-separated numbers",
-        ) from None
-    if len(vals) != n or not all(math.isfinite(v) for v in vals):
-        raise MalformedURDFError(
-            f"{what}={text!r} must be {n} finite numbers",
-            path=path,
-            line=line,
-            element=element,
-            fix=f"write {what} as {n} space-separated finite numbers",
-        )
-    return np.asarray(vals, dtype=np.float64)
-
-
-def _float(text: str | None, *, what: str, path: str, line: int, element: str) -> float | None:
-    if text is None:
-        return None
-    return float(_floats(text, 1, what=what, path=path, line=line, element=element)[0])
-
-
 def parse_urdf_bytes(data: bytes, path: str = "<urdf>") -> UrdfModel:
     """Validate URDF text and build the :class:`UrdfModel` (see :func:`load_urdf`)."""
-    m = _UNSAFE.search(data)
-    if m:
-        raise UnsafeURDFError(
-            f"the file declares <!{m.group(1).decode().upper()}>; mer never resolves DTDs or XML "
-            "entities (they can read local files or the network)",
-            path=path,
-            line=_line_of(data, m.start()),
-            fix="expand xacro/entities into plain XML (e.g. `xacro robot.urdf.xacro > robot.urdf`) "
-            "and remove the DOCTYPE",
-        )
-    parser = etree.XMLParser(
-        resolve_entities=False, no_network=True, load_dtd=False, huge_tree=False, remove_comments=True
-    )
-    try:
-        root = etree.fromstring(data, parser)
-    except etree.XMLSyntaxError as exc:
-        raise MalformedURDFError(
-            f"not well-formed XML: {exc.msg}",
-            path=path,
-            line=exc.lineno,
-            fix="repair the XML (an unclosed tag or stray character is the usual cause)",
-        ) from None
-    if root.tag != "robot":
-        raise MalformedURDFError(
-            f"the root element is <{root.tag}>, not <robot>",
-            path=path,
-            line=root.sourceline,
-            fix="a URDF's top element must be <robot name=...>",
-        )
-    robot_name = root.get("name") or Path(path).stem
-
-    # ---- links -----------------------------------------------------------------------------
-    links: list[str] = []
-    link_lines: dict[str, int] = {}
-    for el in root.findall("link"):
-        name = el.get("name")
-        if not name:
-            raise MalformedURDFError(
-                "<link> without a name", path=path, line=el.sourceline, fix="give every link a unique name"
-            )
-        if name in link_lines:
-            raise MalformedURDFError(
-                f"link '{name}' is defined twice (first at line {link_lines[name]})",
-                path=path,
-                line=el.sourceline,
-                element=f"link '{name}'",
-                fix="link names must be unique",
-            )
-        links.append(name)
-        link_lines[name] = el.sourceline
-    if not links:
-        raise MalformedURDFError("the robot has no <link>", path=path, line=root.sourceline)
-
-    # ---- joints: structure and values, validated with line numbers --------------------------
-    joints: list[_Checked] = []
-    seen: dict[str, int] = {}
-    mimics: dict[str, tuple[str, int]] = {}
-    child_of: dict[str, _Checked] = {}
-    for el in root.findall("joint"):
-        line = el.sourceline
-        name = el.get("name")
-        if not name:
-            raise MalformedURDFError("<joint> without a name", path=path, line=line, fix="name every joint")
-        element = f"joint '{name}'"
-        if name in seen:
-            raise MalformedURDFError(
-                f"joint '{name}' is defined twice (first at line {seen[name]})",
-                path=path,
-                line=line,
-                element=element,
-                fix="joint names must be unique",
-            )
-        seen[name] = line
-        jtype = el.get("type")
-        if jtype not in JOINT_TYPES:
-            raise MalformedURDFError(
-                f"type={jtype!r} is not a URDF joint type",
-                path=path,
-                line=line,
-                element=element,
-                fix=f"use one of {', '.join(JOINT_TYPES)}",
-            )
-        ends = {}
-        for tag in ("parent", "child"):
-            sub = el.find(tag)
-            if sub is None or not sub.get("link"):
-                raise MalformedURDFError(
-                    f"missing <{tag} link=...>",
-                    path=path,
-                    line=line,
-                    element=element,
-                    fix=f"every joint needs a <{tag} link=\"...\"/>",
-                )
-            ref = sub.get("link")
-            if ref not in link_lines:
-                raise BrokenReferenceError(
-                    f"{tag} link '{ref}' does not exist",
-                    path=path,
-                    line=sub.sourceline,
-                    element=element,
-                    fix=_did_you_mean(ref, links, "define the link or correct the name"),
-                )
-            ends[tag] = ref
-        if ends["parent"] == ends["child"]:
-            raise KinematicTreeError(
-                f"link '{ends['parent']}' is its own parent",
-                path=path,
-                line=line,
-                element=element,
-                fix="a joint must connect two different links",
-            )
-        org = el.find("origin")
-        if org is not None:
-            _floats(org.get("xyz", "0 0 0"), 3, what="origin xyz", path=path, line=org.sourceline, element=element)
-            _floats(org.get("rpy", "0 0 0"), 3, what="origin rpy", path=path, line=org.sourceline, element=element)
-        ax_el = el.find("axis")
-        axis = np.array([1.0, 0.0, 0.0])
-        if ax_el is not None:
-            axis = _floats(ax_el.get("xyz", "1 0 0"), 3, what="axis xyz", path=path, line=ax_el.sourceline, element=element)
-        lower = upper = None
-        lim = el.find("limit")
-        if lim is not None:
-            lower = _float(lim.get("lower"), what="limit lower", path=path, line=lim.sourceline, element=element)
-            upper = _float(lim.get("upper"), what="limit upper", path=path, line=lim.sourceline, element=element)
-        mim = el.find("mimic")
-        if mim is not None:
-            master = mim.get("joint")
-            if not master:
-                raise MalformedURDFError(
-                    "<mimic> without joint=...", path=path, line=mim.sourceline, element=element,
-                    fix="name the joint this joint follows",
-                )
-            _float(mim.get("multiplier", "1"), what="mimic multiplier", path=path, line=mim.sourceline, element=element)
-            _float(mim.get("offset", "0"), what="mimic offset", path=path, line=mim.sourceline, element=element)
-            mimics[name] = (master, mim.sourceline)
-        if jtype in ("revolute", "continuous", "prismatic"):
-            norm = float(np.linalg.norm(axis))
-            if norm < 1e-9:
-                raise UnsupportedJointError(
-                    "the joint axis is zero",
-                    path=path,
-                    line=(ax_el.sourceline if ax_el is not None else line),
-                    element=element,
-                    fix="give <axis xyz=...> a non-zero direction",
-                )
-        if jtype in ("revolute", "prismatic") and (lower is None or upper is None):
-            raise UnsupportedJointError(
-                f"a {jtype} joint needs <limit lower=... upper=...>",
-                path=path,
-                line=(lim.sourceline if lim is not None else line),
-                element=element,
-                fix="add the position limits, or make it type=\"continuous\" if it turns freely",
-            )
-        if lower is not None and upper is not None and lower > upper:
-            raise MalformedURDFError(
-                f"limit lower={lower} is above upper={upper}",
-                path=path,
-                line=lim.sourceline,
-                element=element,
-                fix="swap the two limits",
-            )
-        joint = _Checked(name, jtype, ends["parent"], ends["child"], line)
-        if joint.child in child_of:
-            other = child_of[joint.child]
-            raise KinematicTreeError(
-                f"link '{joint.child}' is the child of two joints ('{other.name}' at line {other.line} "
-                f"and '{name}')",
-                path=path,
-                line=line,
-                element=element,
-                fix="a URDF must be a tree: every link has at most one parent joint (closed loops are "
-                "not supported)",
-            )
-        child_of[joint.child] = joint
-        joints.append(joint)
-
-    # ---- one tree ----------------------------------------------------------------------------
-    roots = [l for l in links if l not in child_of]
-    if not roots:
-        j = joints[0]
-        raise KinematicTreeError(
-            "every link is some joint's child: the joints form a cycle",
-            path=path,
-            line=j.line,
-            fix="break the cycle so that exactly one link (the base) has no parent joint",
-        )
-    if len(roots) > 1:
-        listed = ", ".join(f"'{r}' (line {link_lines[r]})" for r in roots[:6])
-        raise KinematicTreeError(
-            f"{len(roots)} links have no parent joint: {listed}; the robot must have a single root",
-            path=path,
-            line=link_lines[roots[1]],
-            fix="connect the extra links with a joint, or remove the unused ones",
-        )
-    root_link = roots[0]
-    reached = _reachable(root_link, joints)
-    unreached = [l for l in links if l not in reached]
-    if unreached:
-        # a cycle detached from the root: every unreached link has a parent, so they loop
-        j = child_of[unreached[0]]
-        raise KinematicTreeError(
-            f"links {', '.join(repr(u) for u in unreached[:6])} form a cycle not connected to the root "
-            f"'{root_link}'",
-            path=path,
-            line=j.line,
-            element=f"joint '{j.name}'",
-            fix="remove the loop: a URDF must be a tree",
-        )
-    for jname, (master, line) in mimics.items():
-        if master not in seen:
-            raise BrokenReferenceError(
-                f"mimics joint '{master}', which does not exist",
-                path=path,
-                line=line,
-                element=f"joint '{jname}'",
-                fix=_did_you_mean(master, list(seen), "correct the <mimic joint=...> name"),
-            )
+    root = parse_xml(data, path)
+    link_lines = check_links(root, path)
+    joints, _ = check_joints(root, path, link_lines)
     return UrdfModel(
         path=path,
-        name=robot_name,
-        links=tuple(links),
+        name=root.get("name") or Path(path).stem,
+        links=tuple(link_lines),
         link_lines=link_lines,
-        root=root_link,
+        root=check_tree(link_lines, joints, path),
         **_read_values_with_yourdfpy(root, joints),
     )
 
 
-def _reachable(root: str, joints: list[_Checked]) -> set[str]:
-    kids: dict[str, list[str]] = {}
-    for j in joints:
-        kids.setdefault(j.parent, []).append(j.child)
-    out, stack = set(), [root]
-    while stack:
-        link = stack.pop()
-        if link in out:
-            continue
-        out.add(link)
-        stack.extend(kids.get(link, ()))
-    return out
-
-
-def _read_values_with_yourdfpy(root, checked: list[_Checked]) -> dict:
+def _read_values_with_yourdfpy(root, checked: list[CheckedJoint]) -> dict:
     """Read origins, axes, limits, mimic tags and collision shapes with yourdfpy.
 
     Everything yourdfpy could choke on (numbers, references, limits) was validated above with
@@ -472,10 +188,3 @@ def _collision_points(model) -> dict[str, np.ndarray]:
     return out
 
 
-def _did_you_mean(name: str, choices, otherwise: str) -> str:
-    import difflib
-
-    close = difflib.get_close_matches(name, list(choices), n=3, cutoff=0.6)
-    if close:
-        return "did you mean " + " or ".join(repr(c) for c in close) + "?"
-    return otherwise

@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from mer_data import registry
-from mer_data.errors import RegistryError, RobotExistsError, UnknownRobotError
+from mer_data.errors import RegistryError, UnknownRobotError
 from mer_data.register import register_robot
 from mer_data.registry import get_skeleton, list_robots, load_robot, robots_dir, unregister_robot
 from mer_models.cli import main
