@@ -16,9 +16,12 @@ line prints ``str(error)`` and exits non-zero; library callers can catch the cla
     │   └── RobotExistsError
     ├── MotionFormatError           motion files (CSV) that do not match the robot
     ├── SplitError                  a train/eval split that does not fit the clips
-    └── ShardError                  training shards
-        ├── ShardFormatError        not a shard, a damaged one, or an unsupported format version
-        └── ShardBuildError         a build that cannot start or finish (input, output folder)
+    ├── ShardError                  training shards
+    │   ├── ShardFormatError        not a shard, a damaged one, or an unsupported format version
+    │   └── ShardBuildError         a build that cannot start or finish (input, output folder)
+    ├── ConfigError                 a configuration (or checkpoint config.json) the code does not match
+    └── CheckpointError             missing, corrupt or mismatched model checkpoints
+        └── UnseenRobotError        a checkpoint asked to retarget to a robot it never saw
 """
 
 from __future__ import annotations
@@ -38,6 +41,9 @@ __all__ = [
     "UnknownRobotError",
     "RobotExistsError",
     "MotionFormatError",
+    "ConfigError",
+    "CheckpointError",
+    "UnseenRobotError",
     "SplitError",
     "ShardError",
     "ShardFormatError",
@@ -133,6 +139,18 @@ class RobotExistsError(RegistryError):
 
 class MotionFormatError(MerError):
     """A motion file (CSV) that does not match its robot's layout."""
+
+
+class ConfigError(MerError):
+    """A configuration, or a checkpoint's ``config.json``, that does not match the code."""
+
+
+class CheckpointError(MerError):
+    """A model checkpoint that is missing, corrupt, or does not match the model."""
+
+
+class UnseenRobotError(CheckpointError):
+    """A checkpoint asked to retarget to (or from) a robot it was never trained on."""
 
 
 class SplitError(MerError):

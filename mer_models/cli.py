@@ -13,6 +13,9 @@ from mer_data.errors import MerError
 
 from . import __version__
 from . import demo as demo_cli
+from .commands import evaluate as evaluate_cli
+from .commands import retarget as retarget_cli
+from .commands import train as train_cli
 
 log = logging.getLogger("mer")
 
@@ -27,6 +30,9 @@ def build_parser() -> argparse.ArgumentParser:
     robots_cli.add_parser(sub)
     shards_cli.add_parser(sub)
     demo_cli.add_parser(sub)
+    train_cli.add_parser(sub)
+    retarget_cli.add_parser(sub)
+    evaluate_cli.add_parser(sub)
     return p
 
 

@@ -1,0 +1,262 @@
+"""Checkpoints: a folder with ``config.json`` + ``model.safetensors`` (+ training state to resume).
+
+Layout (format version :data:`FORMAT_VERSION`)::
+
+    CKPT/
+      config.json            format, format_version, mer_version, run (model/energy/sampler/train
+                             configuration), robots (targets and references seen, with skeleton
+                             fingerprints), data (shards, split, sample count), metrics, step
+      model.safetensors      the weights
+      optimizer.safetensors  optimiser moments and RNG states (only for resuming)
+      trainer_state.json     step, epoch, position in the epoch, optimiser hyper-parameters
+
+Weights load only through safetensors, strictly: every key of the model must be present with its
+shape and nothing else may be there; otherwise :class:`~mer_data.errors.CheckpointError` lists the
+keys. No pickle anywhere (``torch.load`` is never called). A folder is written into a temporary
+sibling and renamed into place, so an interrupted save never leaves a half-written checkpoint.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import logging
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import torch
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save_file
+
+from mer_data.errors import CheckpointError, ConfigError, UnseenRobotError
+
+from . import __version__
+from .config import RunConfig, from_dict
+from .model import RetargetModel
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "FORMAT",
+    "FORMAT_VERSION",
+    "Checkpoint",
+    "save_checkpoint",
+    "load_checkpoint",
+    "load_weights",
+    "resolve_model",
+    "check_robot",
+]
+
+FORMAT = "mer-checkpoint"
+FORMAT_VERSION = 1
+CONFIG, WEIGHTS, OPTIMIZER, STATE = "config.json", "model.safetensors", "optimizer.safetensors", "trainer_state.json"
+
+
+@dataclass
+class Checkpoint:
+    """A loaded checkpoint: the model (eval mode) and its metadata."""
+
+    path: Path
+    run: RunConfig
+    model: RetargetModel
+    robots: dict[str, dict[str, str]] = field(default_factory=dict)
+    data: dict[str, Any] = field(default_factory=dict)
+    metrics: dict[str, Any] = field(default_factory=dict)
+    step: int = 0
+
+    @property
+    def targets(self) -> list[str]:
+        return sorted(self.robots.get("targets", {}))
+
+    @property
+    def references(self) -> list[str]:
+        return sorted(self.robots.get("references", {}))
+
+
+def _atomic_dir(final: Path, write) -> None:
+    final = Path(final)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{final.name}-", dir=final.parent))
+    try:
+        write(tmp)
+        old = None
+        if final.exists():
+            old = final.parent / f".old-{final.name}-{os.getpid()}"
+            os.rename(final, old)
+        os.rename(tmp, final)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def _optimizer_tensors(opt: torch.optim.Optimizer) -> tuple[dict[str, torch.Tensor], dict]:
+    sd = opt.state_dict()
+    tensors = {}
+    for idx, st in sd["state"].items():
+        for k, v in st.items():
+            tensors[f"state.{idx}.{k}"] = torch.as_tensor(v).detach().cpu().contiguous()
+    return tensors, {"param_groups": sd["param_groups"]}
+
+
+def save_checkpoint(
+    path: str | Path,
+    model: RetargetModel,
+    run: RunConfig,
+    *,
+    robots: Mapping[str, Mapping[str, str]],
+    data: Mapping[str, Any] | None = None,
+    metrics: Mapping[str, Any] | None = None,
+    step: int = 0,
+    optimizer: torch.optim.Optimizer | None = None,
+    trainer_state: Mapping[str, Any] | None = None,
+    rng_tensors: Mapping[str, torch.Tensor] | None = None,
+) -> Path:
+    """Write a checkpoint folder atomically (see module docstring). Returns its path."""
+    meta = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "mer_version": __version__,
+        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "run": run.to_dict(),
+        "robots": {k: dict(v) for k, v in robots.items()},
+        "data": dict(data or {}),
+        "metrics": dict(metrics or {}),
+        "step": int(step),
+    }
+    weights = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
+
+    def write(tmp: Path) -> None:
+        (tmp / CONFIG).write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+        save_file(weights, str(tmp / WEIGHTS), metadata={"format": FORMAT, "format_version": str(FORMAT_VERSION)})
+        if optimizer is not None:
+            tensors, groups = _optimizer_tensors(optimizer)
+            for k, v in (rng_tensors or {}).items():
+                tensors[f"rng.{k}"] = v.detach().cpu().contiguous()
+            save_file(tensors, str(tmp / OPTIMIZER))
+            (tmp / STATE).write_text(json.dumps({**groups, **dict(trainer_state or {})}, indent=2, sort_keys=True) + "\n")
+
+    _atomic_dir(Path(path), write)
+    return Path(path)
+
+
+def _read_meta(path: Path) -> dict:
+    cfg = path / CONFIG
+    if not cfg.is_file():
+        raise CheckpointError(
+            f"no {CONFIG} in {path}", path=path, fix="pass a checkpoint folder written by `mer train`"
+        )
+    try:
+        meta = json.loads(cfg.read_text())
+    except json.JSONDecodeError as exc:
+        raise CheckpointError(f"{CONFIG} is not valid JSON: {exc.msg}", path=cfg, line=exc.lineno) from None
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise CheckpointError(f"not a mer checkpoint (format {meta.get('format') if isinstance(meta, dict) else None!r})", path=cfg)
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise CheckpointError(
+            f"checkpoint format version {meta.get('format_version')!r}, this mer reads {FORMAT_VERSION}",
+            path=cfg,
+            element="format_version",
+            fix=f"use mer {meta.get('mer_version', '?')} or convert the checkpoint",
+        )
+    for key in ("run", "robots", "step"):
+        if key not in meta:
+            raise CheckpointError(f"{CONFIG} misses the field {key!r}", path=cfg, element=key)
+    return meta
+
+
+def load_weights(model: torch.nn.Module, file: str | Path) -> None:
+    """Load a safetensors file into ``model``, strictly (missing/unexpected/shape → CheckpointError)."""
+    file = Path(file)
+    if not file.is_file():
+        raise CheckpointError(f"the weights file is missing", path=file, fix="the checkpoint folder is incomplete; copy it again")
+    try:
+        sd = load_file(str(file))
+    except (SafetensorError, OSError, ValueError) as exc:
+        raise CheckpointError(f"cannot read the weights: {exc}", path=file, fix="the file is corrupt; download or copy it again") from None
+    own = model.state_dict()
+    missing = sorted(set(own) - set(sd))
+    unexpected = sorted(set(sd) - set(own))
+    if missing or unexpected:
+        parts = []
+        if missing:
+            parts.append(f"missing {len(missing)} tensor(s): {', '.join(missing[:5])}{' ...' if len(missing) > 5 else ''}")
+        if unexpected:
+            parts.append(f"unexpected {len(unexpected)} tensor(s): {', '.join(unexpected[:5])}{' ...' if len(unexpected) > 5 else ''}")
+        raise CheckpointError(
+            "the weights do not match the model: " + "; ".join(parts),
+            path=file,
+            element=(missing or unexpected)[0],
+            fix="the weights and config.json come from different models; use a consistent checkpoint",
+        )
+    for k, v in own.items():
+        if sd[k].shape != v.shape:
+            raise CheckpointError(
+                f"tensor {k} has shape {tuple(sd[k].shape)}, the model expects {tuple(v.shape)}",
+                path=file,
+                element=k,
+                fix="the weights and config.json come from different models; use a consistent checkpoint",
+            )
+    model.load_state_dict({k: sd[k].to(own[k].dtype) for k in own}, strict=True)
+
+
+def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> Checkpoint:
+    """Build the model from ``config.json`` and load ``model.safetensors`` strictly."""
+    path = Path(path)
+    if not path.is_dir():
+        raise CheckpointError(f"no checkpoint folder at {path}", path=path, fix="pass the folder `mer train --out` wrote")
+    meta = _read_meta(path)
+    try:
+        run = from_dict(meta["run"])
+    except ConfigError as exc:
+        raise ConfigError(
+            f"the checkpoint's configuration does not match this version of mer: {exc.message}",
+            path=path / CONFIG,
+            element=f"run.{exc.element}" if exc.element else "run",
+            fix=exc.fix,
+        ) from None
+    model = RetargetModel(run.model)
+    load_weights(model, path / WEIGHTS)
+    model.to(device).eval()
+    return Checkpoint(path, run, model, meta["robots"], meta.get("data", {}), meta.get("metrics", {}), int(meta["step"]))
+
+
+def resolve_model(spec: str | Path, device: str | torch.device = "cpu") -> Checkpoint:
+    """A checkpoint folder, or a model name from the zoo (when :mod:`mer_models.zoo` is installed)."""
+    p = Path(spec).expanduser()
+    if p.is_dir() or os.sep in str(spec) or str(spec).startswith("."):
+        return load_checkpoint(p, device)
+    try:
+        from . import zoo  # type: ignore[attr-defined]
+    except ImportError:
+        raise CheckpointError(
+            f"no checkpoint folder named {str(spec)!r} and no model zoo in this installation",
+            fix="pass the folder written by `mer train --out DIR`",
+        ) from None
+    folder = zoo.download(str(spec))  # pragma: no cover - provided by the zoo
+    return load_checkpoint(folder, device)
+
+
+def check_robot(ckpt: Checkpoint, robot: str, role: str = "targets", fingerprint: str | None = None) -> None:
+    """Refuse a robot the checkpoint was not trained on (role ``targets`` or ``references``)."""
+    seen = ckpt.robots.get(role, {})
+    if robot not in seen:
+        what = "target" if role == "targets" else "reference (source)"
+        raise UnseenRobotError(
+            f"the model {ckpt.path} was never trained with {robot!r} as a {what} robot "
+            f"(it saw: {', '.join(sorted(seen)) or 'none'})",
+            element=robot,
+            fix=f"fine-tune it for {robot!r} with `mer finetune --robot {robot} ...`, or use --method optimize",
+        )
+    if fingerprint is not None and seen[robot] and seen[robot] != fingerprint:
+        log.warning(
+            "robot %r differs from the skeleton the model was trained on (fingerprint %s… vs %s…)",
+            robot,
+            fingerprint[:12],
+            seen[robot][:12],
+        )

@@ -1,0 +1,269 @@
+"""Configuration of the retargeting model, its energy, its sampler and its training (frozen, validated).
+
+Every checkpoint stores these as JSON (``config.json``); :func:`from_dict` refuses unknown or
+missing fields by name, so a checkpoint written by other code fails loudly instead of loading
+half-right.
+
+Presets (:data:`PRESETS`):
+
+* ``paper``: the paper's configuration (H = 240, 4 layers per decoder, 6 heads, FFN 1024,
+  batch 16, ``T_w`` = 31, 60-frame windows).
+* ``tiny``: the same architecture, small enough to train on 2 CPU cores in minutes (tests, demo).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+from mer_data.errors import ConfigError
+
+__all__ = [
+    "ModelConfig",
+    "EnergyConfig",
+    "SamplerConfig",
+    "TrainConfig",
+    "RunConfig",
+    "PRESETS",
+    "preset",
+    "from_dict",
+    "ConfigError",
+]
+
+
+def _check(cond: bool, cls: str, name: str, msg: str) -> None:
+    if not cond:
+        raise ConfigError(f"{msg}", element=f"{cls}.{name}", fix="correct the value (see docs/model.md)")
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """The network (paper, Network Architecture).
+
+    Attributes:
+        hidden: latent width ``H`` of every token.
+        layers: layers per transformer decoder (reference encoder and denoiser each).
+        heads: heads of the spatial and temporal self-attention (head width ``H / heads``).
+        cross_heads_per_condition: heads given to each condition in the multi-conditional cross
+            attention (3 conditions in the reference encoder, 4 in the denoiser), head width
+            ``H / heads``; the concatenation is projected back to ``H``.
+        ffn: hidden width of the feed-forward block.
+        dropout: dropout after attention and feed-forward blocks.
+        window: temporal attention window ``T_w`` (odd): frame i sees frames i-(T_w-1)/2 .. i+(T_w-1)/2.
+        frames: frames per window (the clip length the model is trained and sampled on).
+        sigma_data: EDM ``sigma_data`` of the normalized features.
+        pos_scale: [m] positions are divided by this in the diffusion space.
+        vel_scale: [m/s] velocities are divided by this in the diffusion space.
+    """
+
+    hidden: int = 240
+    layers: int = 4
+    heads: int = 6
+    cross_heads_per_condition: int = 2
+    ffn: int = 1024
+    dropout: float = 0.1
+    window: int = 31
+    frames: int = 60
+    sigma_data: float = 0.5
+    pos_scale: float = 1.0
+    vel_scale: float = 2.0
+
+    def __post_init__(self) -> None:
+        c = "ModelConfig"
+        for name in ("hidden", "layers", "heads", "cross_heads_per_condition", "ffn", "frames"):
+            _check(isinstance(getattr(self, name), int) and getattr(self, name) > 0, c, name, "must be a positive integer")
+        _check(self.hidden % self.heads == 0, c, "hidden", f"hidden={self.hidden} is not divisible by heads={self.heads}")
+        _check(self.window % 2 == 1 and self.window >= 1, c, "window", f"window={self.window} must be odd and >= 1")
+        _check(0.0 <= self.dropout < 1.0, c, "dropout", "must be in [0, 1)")
+        for name in ("sigma_data", "pos_scale", "vel_scale"):
+            _check(float(getattr(self, name)) > 0, c, name, "must be > 0")
+
+    @property
+    def head_dim(self) -> int:
+        return self.hidden // self.heads
+
+
+@dataclass(frozen=True)
+class EnergyConfig:
+    """The energy ``f_kin = L_kp + L_cst + L_vel + L_norm`` and its weight in the loss.
+
+    One setting for every robot (paper). Units: ``L_kp``, ``L_cst`` [m^2], ``L_vel`` [(m/s)^2],
+    ``L_norm`` [rad^2] + [(m/s)^2]; each term is a mean over the frames and the bodies it covers.
+
+    Attributes:
+        w_kp, w_cst, w_vel, w_norm: the paper's ``w0 .. w3``.
+        lam: ``lambda``, the energy's weight against the EDM denoising term.
+    """
+
+    w_kp: float = 1.0
+    w_cst: float = 1.0
+    w_vel: float = 0.01
+    w_norm: float = 1e-3
+    lam: float = 10.0
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            v = float(getattr(self, f.name))
+            _check(math.isfinite(v) and v >= 0, "EnergyConfig", f.name, "must be a finite number >= 0")
+
+
+@dataclass(frozen=True)
+class SamplerConfig:
+    """EDM sampling (Karras et al. 2022, Alg. 1).
+
+    Attributes:
+        steps: Heun steps (network evaluations: ``2 * steps - 1``).
+        sigma_min, sigma_max, rho: the Karras noise schedule.
+        guidance: step size of test-time energy guidance (0 = off): each denoised estimate moves
+            by ``-guidance * grad f_kin`` (see :mod:`mer_models.sampling`).
+        overlap: frames in-painted from the previous clip in long-horizon retargeting.
+    """
+
+    steps: int = 16
+    sigma_min: float = 0.002
+    sigma_max: float = 80.0
+    rho: float = 7.0
+    guidance: float = 0.0
+    overlap: int = 10
+
+    def __post_init__(self) -> None:
+        c = "SamplerConfig"
+        _check(isinstance(self.steps, int) and self.steps >= 1, c, "steps", "must be an integer >= 1")
+        _check(0 < self.sigma_min < self.sigma_max, c, "sigma_min", "need 0 < sigma_min < sigma_max")
+        _check(self.rho > 0, c, "rho", "must be > 0")
+        _check(self.guidance >= 0, c, "guidance", "must be >= 0")
+        _check(isinstance(self.overlap, int) and self.overlap >= 1, c, "overlap", "must be an integer >= 1")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Optimisation.
+
+    Attributes:
+        batch_size: windows per step (summed over DDP ranks: each rank takes ``batch_size / world``).
+        lr, weight_decay, warmup, grad_clip: AdamW with linear warm-up, then constant.
+        p_mean, p_std: EDM training noise ``ln sigma ~ N(p_mean, p_std^2)``. Default N(0, 1.5^2): the
+            coverage of the 1000-step cosine-schedule DDPM the paper's lineage trains with (EDM's
+            image default N(-1.2, 1.2^2) leaves the high-noise regime, where retargeting is decided,
+            almost untrained; docs/model.md).
+        opt_iters: refinement iterations of the optimisation baseline when it supplies ``x`` for a
+            target without motion data (see docs/model.md).
+        seed: seeds noise, data order and initialisation.
+        log_every, save_every: in steps.
+    """
+
+    batch_size: int = 16
+    lr: float = 2e-4
+    weight_decay: float = 0.0
+    warmup: int = 200
+    grad_clip: float = 1.0
+    p_mean: float = 0.0
+    p_std: float = 1.5
+    opt_iters: int = 20
+    seed: int = 0
+    log_every: int = 10
+    save_every: int = 500
+
+    def __post_init__(self) -> None:
+        c = "TrainConfig"
+        for name in ("batch_size", "log_every", "save_every"):
+            _check(isinstance(getattr(self, name), int) and getattr(self, name) >= 1, c, name, "must be an integer >= 1")
+        _check(self.lr > 0, c, "lr", "must be > 0")
+        _check(self.p_std > 0, c, "p_std", "must be > 0")
+        _check(isinstance(self.warmup, int) and self.warmup >= 0, c, "warmup", "must be an integer >= 0")
+        _check(isinstance(self.opt_iters, int) and self.opt_iters >= 0, c, "opt_iters", "must be an integer >= 0")
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Everything a checkpoint needs to rebuild and resume its model."""
+
+    name: str = "paper"
+    model: ModelConfig = field(default_factory=ModelConfig)
+    energy: EnergyConfig = field(default_factory=EnergyConfig)
+    sampler: SamplerConfig = field(default_factory=SamplerConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    def replace(self, **sections: Any) -> "RunConfig":
+        return dataclasses.replace(self, **sections)
+
+
+PRESETS: dict[str, RunConfig] = {
+    "paper": RunConfig(name="paper"),
+    "tiny": RunConfig(
+        name="tiny",
+        model=ModelConfig(hidden=48, layers=2, heads=4, cross_heads_per_condition=1, ffn=96, dropout=0.0),
+        train=TrainConfig(batch_size=8, lr=1e-3, warmup=100, opt_iters=6, save_every=100),
+    ),
+}
+
+
+def preset(name: str) -> RunConfig:
+    """A preset by name (``tiny`` or ``paper``)."""
+    try:
+        return PRESETS[name]
+    except KeyError:
+        raise ConfigError(
+            f"unknown configuration {name!r}; known: {', '.join(PRESETS)}", fix="use --config tiny or --config paper"
+        ) from None
+
+
+_SECTIONS = {"model": ModelConfig, "energy": EnergyConfig, "sampler": SamplerConfig, "train": TrainConfig}
+
+
+def _section(cls, data: Any, where: str):
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"section {where!r} must be a JSON object", element=where)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - names)
+    missing = sorted(names - set(data))
+    if unknown:
+        raise ConfigError(
+            f"field(s) {', '.join(f'{where}.{u}' for u in unknown)} are not known to this version of mer "
+            f"(known: {', '.join(sorted(names))})",
+            element=f"{where}.{unknown[0]}",
+            fix="load it with the mer version that wrote it, or convert the checkpoint",
+        )
+    if missing:
+        raise ConfigError(
+            f"field(s) {', '.join(f'{where}.{m}' for m in missing)} are missing",
+            element=f"{where}.{missing[0]}",
+            fix="the checkpoint was written by another version of mer; convert it or retrain",
+        )
+    for f in dataclasses.fields(cls):
+        v = data[f.name]
+        default = getattr(cls(), f.name)
+        ok = isinstance(v, type(default)) or (isinstance(default, float) and isinstance(v, int) and not isinstance(v, bool))
+        if isinstance(default, int) and isinstance(v, bool):
+            ok = False
+        if not ok:
+            raise ConfigError(
+                f"field {where}.{f.name} has the wrong type ({type(v).__name__}, expected {type(default).__name__})",
+                element=f"{where}.{f.name}",
+            )
+    kw = {k: (float(v) if isinstance(getattr(cls(), k), float) else v) for k, v in data.items()}
+    return cls(**kw)
+
+
+def from_dict(data: Mapping[str, Any]) -> RunConfig:
+    """Rebuild a :class:`RunConfig` from :meth:`RunConfig.to_dict`, strictly (unknown/missing → error)."""
+    if not isinstance(data, Mapping):
+        raise ConfigError("the run configuration must be a JSON object")
+    known = {"name", *_SECTIONS}
+    unknown = sorted(set(data) - known)
+    missing = sorted(known - set(data))
+    if unknown or missing:
+        bad = (unknown or missing)[0]
+        raise ConfigError(
+            ("unknown" if unknown else "missing") + f" configuration section(s): {', '.join(unknown or missing)}",
+            element=bad,
+            fix="the checkpoint was written by another version of mer; convert it or retrain",
+        )
+    if not isinstance(data["name"], str):
+        raise ConfigError("name must be a string", element="name")
+    return RunConfig(name=data["name"], **{k: _section(cls, data[k], k) for k, cls in _SECTIONS.items()})

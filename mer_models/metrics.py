@@ -1,0 +1,135 @@
+"""Evaluation metrics (paper, Evaluation Metrics; after Xie et al.), for cross-robot retargeting.
+
+The paper names the metrics but not what a "body" or the ground truth is when the target robot is
+not the source robot. mer's definitions (docs/model.md):
+
+* **Bodies** are the key points the target and the reference share (the pairs of the joint map
+  ``eta``, the floating bases included); TRON1 has 8 + base, the humanoids 14 + base.
+* **Ground truth** is the reference motion body-part scaled to the target (``ref_scaled_pos``),
+  in the world frame, and the reference's own node orientations.
+
+Per window (then averaged over windows, reported as mean ± std):
+
+* ``g_mpbpe`` [m]: mean over frames and bodies of ``|| p_i - p*_j ||`` (global positions, no root
+  alignment).
+* ``mpbve`` [m/s]: the same on velocities (second-order finite differences at the frame rate).
+* ``mpboe`` [rad]: mean geodesic angle between the target node frame and the reference node frame
+  of each pair. Node frames are aligned with the root at each robot's zero pose, so this is the
+  difference between how far each body has turned from its zero pose (rest poses differ between
+  robots: it is a consistency measure, not an error that can reach 0 across morphologies).
+* ``jerk`` [rad/s^3]: mean over frames and actuated joints of ``|d^3 q / dt^3|`` (third forward
+  difference times fps^3). ``jerk_frame`` is the same in rad/frame^3 (without fps^3), the scale of
+  the paper's ``E_smooth`` values.
+* ``limit_violation`` [fraction]: frames in which any actuated joint is outside its limits by more
+  than 1e-6 rad.
+
+When the target robot has its own motion for the window (G1 and H1 share LAFAN1 clips), the same
+position, velocity and orientation errors against *that* motion over all of its nodes are added as
+``gt_mpbpe``, ``gt_mpbve``, ``gt_mpboe``.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+import torch
+
+from mer_data.features import finite_difference
+from mer_data.rotations import rotation_angle_between
+
+from .energy import split_motion
+from .kinematics import BatchGraph, batch_fk, graph_from_batch
+
+__all__ = ["METRICS", "GT_METRICS", "window_metrics", "summarize", "LIMIT_TOL"]
+
+METRICS = ("g_mpbpe", "mpboe", "mpbve", "jerk", "jerk_frame", "limit_violation")
+GT_METRICS = ("gt_mpbpe", "gt_mpboe", "gt_mpbve")
+LIMIT_TOL = 1e-6
+
+
+def _mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """x (B, T, J), mask (B, J) → (B,)."""
+    m = mask[:, None].to(x.dtype)
+    return (x * m).sum((1, 2)) / (m.sum((1, 2)) * x.shape[1]).clamp_min(1)
+
+
+def _pair_index(eta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(B, Jt, Jr) → reference node of each target node (B, Jt) and the pair mask (B, Jt)."""
+    return eta.argmax(-1), eta.sum(-1) > 0
+
+
+def window_metrics(motion: Mapping[str, torch.Tensor], batch: Mapping, fps: float = 30.0) -> dict[str, np.ndarray]:
+    """Metrics of retargeted windows.
+
+    Args:
+        motion: ``q`` (B, T, Jt), ``base_pos`` (B, T, 3), ``base_rot`` (B, T, 3, 3), in the frame of
+            the batch's ``ref_scaled_pos``.
+        batch: the collated batch the motion was retargeted from.
+
+    Returns:
+        name → (B,) float64 per window (``gt_*`` are NaN where the batch has no target motion).
+    """
+    dt = torch.float64
+    tg = _as(graph_from_batch(batch, "tgt"), dt)
+    rg = _as(graph_from_batch(batch, "ref"), dt)
+    q, bp, br = (motion[k].to(dt).cpu() for k in ("q", "base_pos", "base_rot"))
+    pos, rot = batch_fk(tg, q, bp, br)
+    ref = batch["reference"].to(dt)
+    rq, rbp, rbr = split_motion(ref)
+    _, ref_rot = batch_fk(rg, rq, rbp, rbr)
+    goal = batch["ref_scaled_pos"].to(dt)
+    eta = batch["joint_map"].to(dt)
+    j_of, pairs = _pair_index(eta)
+    pairs = pairs & tg.mask
+    B, T, Jt = q.shape
+    g = torch.gather(goal, 2, j_of[:, None, :, None].expand(B, T, Jt, 3))
+    gr = torch.gather(ref_rot, 2, j_of[:, None, :, None, None].expand(B, T, Jt, 3, 3))
+    vel, gvel = finite_difference(pos, fps, dim=-3), finite_difference(g, fps, dim=-3)
+    out = {
+        "g_mpbpe": _mean((pos - g).norm(dim=-1), pairs),
+        "mpbve": _mean((vel - gvel).norm(dim=-1), pairs),
+        "mpboe": _mean(rotation_angle_between(rot, gr), pairs),
+    }
+    dof = tg.dof
+    if T >= 4:
+        d3 = (q[:, 3:] - 3 * q[:, 2:-1] + 3 * q[:, 1:-2] - q[:, :-3]).abs()
+        out["jerk_frame"] = _mean(d3, dof)
+        out["jerk"] = out["jerk_frame"] * fps**3
+    else:
+        out["jerk_frame"] = out["jerk"] = torch.full((B,), float("nan"), dtype=dt)
+    outside = (q < tg.lower[:, None] - LIMIT_TOL) | (q > tg.upper[:, None] + LIMIT_TOL)
+    out["limit_violation"] = (outside & dof[:, None]).any(-1).to(dt).mean(-1)
+    has = batch["has_target"]
+    nan = torch.full((B,), float("nan"), dtype=dt)
+    out.update({k: nan.clone() for k in GT_METRICS})
+    if bool(has.any()):
+        tq, tbp, tbr = split_motion(batch["target"].to(dt))
+        gpos, grot = batch_fk(tg, tq, tbp, tbr)
+        # the target window is origin-normalized on its own first frame: compare in that frame
+        shift = (bp[:, :1, :2] - tbp[:, :1, :2])
+        gpos = gpos.clone()
+        gpos[..., :2] += shift[:, :, None, :]
+        gvel = finite_difference(gpos, fps, dim=-3)
+        m = tg.mask
+        for k, v in {
+            "gt_mpbpe": _mean((pos - gpos).norm(dim=-1), m),
+            "gt_mpbve": _mean((vel - gvel).norm(dim=-1), m),
+            "gt_mpboe": _mean(rotation_angle_between(rot, grot), m),
+        }.items():
+            out[k] = torch.where(has, v, nan)
+    return {k: v.numpy() for k, v in out.items()}
+
+
+def _as(g: BatchGraph, dtype: torch.dtype) -> BatchGraph:
+    return BatchGraph(**{k: (v.to(dtype) if v.is_floating_point() else v) for k, v in g.__dict__.items()})
+
+
+def summarize(values: Mapping[str, np.ndarray]) -> dict[str, dict[str, float]]:
+    """name → {"mean", "std", "n"} over windows (NaNs ignored)."""
+    out = {}
+    for k, v in values.items():
+        v = np.asarray(v, np.float64)
+        v = v[np.isfinite(v)]
+        out[k] = {"mean": float(v.mean()) if v.size else float("nan"), "std": float(v.std()) if v.size else float("nan"), "n": int(v.size)}
+    return out

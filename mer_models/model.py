@@ -1,0 +1,153 @@
+"""The retargeting model as users and samplers see it: batch → conditions → ``D(x, sigma, C)`` → motion.
+
+:class:`RetargetModel` wraps the network (:mod:`mer_models.network`) with
+
+* the canonical frame of each window and the diffusion-space scaling (:mod:`mer_models.representation`),
+* EDM preconditioning with the joint-limit clip (:mod:`mer_models.edm`),
+* the energy of a prediction (:mod:`mer_models.energy`),
+* decoding of a denoised sample into a world-frame motion (joint angles + base pose).
+
+The denoiser contract is k-diffusion's: ``model.denoise(x, sigma, cond) -> D`` with ``x`` (B, T, Jt, 9)
+in the diffusion space; the encoded reference is computed once per :class:`Conditions` and reused
+by every denoising step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping
+
+import torch
+from torch import nn
+
+from mer_data.rotations import axis_angle_to_matrix
+
+from .config import EnergyConfig, ModelConfig
+from .edm import combine, precondition
+from .energy import f_kin
+from .kinematics import BatchGraph, graph_from_batch
+from .network import RetargetNet
+from .representation import (
+    base_origin,
+    canonical_rotation,
+    denormalize,
+    normalize,
+    transform_features,
+    transform_points,
+)
+
+__all__ = ["Conditions", "RetargetModel"]
+
+
+@dataclass
+class Conditions:
+    """The paper's ``C = (M, g^M, g^X, eta)`` of a batch, in the canonical frame.
+
+    Attributes:
+        reference: (B, T, Jr, 9) reference features, canonical frame, diffusion space.
+        ref_graph, tgt_graph: the two sides' padded skeletons.
+        eta: (B, Jt, Jr) float joint map.
+        goal: (B, T, Jr, 3) body-part-scaled reference positions, canonical frame [m].
+        rot: (B, 3, 3) canonical ← world rotation; origin: (B, 3) world point at the canonical origin
+            (the scaled reference's first base position on the ground).
+        fps: frame rate [Hz].
+        ref_tokens: the encoded reference (filled on first use, reused by every denoising step).
+    """
+
+    reference: torch.Tensor
+    ref_graph: BatchGraph
+    tgt_graph: BatchGraph
+    eta: torch.Tensor
+    goal: torch.Tensor
+    rot: torch.Tensor
+    origin: torch.Tensor
+    fps: float = 30.0
+    ref_tokens: torch.Tensor | None = None
+
+    @property
+    def shape(self) -> tuple[int, int, int, int]:
+        """(B, T, Jt, 9): the shape of a target sample."""
+        B, T = self.reference.shape[:2]
+        return (B, T, self.tgt_graph.parents.shape[1], 9)
+
+
+class RetargetModel(nn.Module):
+    """The guided-diffusion retargeter (network + preconditioning + representation)."""
+
+    def __init__(self, cfg: ModelConfig) -> None:
+        super().__init__()
+        self.cfg = cfg
+        self.net = RetargetNet(cfg)
+
+    # ---- conditions -------------------------------------------------------------------------
+    def conditions(self, batch: Mapping, fps: float = 30.0) -> Conditions:
+        """Canonical-frame conditions of a collated batch (:func:`mer_data.samples.collate`)."""
+        dev = next(self.parameters()).device
+        ref = batch["reference"].to(dev, torch.float32)
+        rot = canonical_rotation(ref)
+        ref_c = transform_features(ref, rot, base_origin(ref))
+        scaled = batch["ref_scaled_pos"].to(dev, torch.float32)
+        origin = scaled[:, 0, 0].clone()
+        origin[:, 2] = 0
+        return Conditions(
+            reference=normalize(ref_c, self.cfg) * batch["ref_mask"].to(dev)[:, None, :, None],
+            ref_graph=graph_from_batch(batch, "ref", dev),
+            tgt_graph=graph_from_batch(batch, "tgt", dev),
+            eta=batch["joint_map"].to(dev, torch.float32),
+            goal=transform_points(scaled, rot, origin),
+            rot=rot,
+            origin=origin,
+            fps=fps,
+        )
+
+    def target_sample(self, target: torch.Tensor, cond: Conditions) -> torch.Tensor:
+        """A clean target window (B, T, Jt, 9) physical world features → diffusion space, canonical.
+
+        The window is placed at its own first base position (the model learns to start at the
+        scaled reference's), rotated like the reference.
+        """
+        t = transform_features(target.to(cond.rot.device, torch.float32), cond.rot, base_origin(target.to(cond.rot.device)))
+        return normalize(t, self.cfg) * cond.tgt_graph.mask[:, None, :, None]
+
+    # ---- denoiser ---------------------------------------------------------------------------
+    def encode(self, cond: Conditions) -> torch.Tensor:
+        if cond.ref_tokens is None:
+            cond.ref_tokens = self.net.encode_reference(cond.reference, cond.ref_graph)
+        return cond.ref_tokens
+
+    def denoise(self, x: torch.Tensor, sigma: torch.Tensor | float, cond: Conditions) -> torch.Tensor:
+        """``D(x, sigma, C)``: x (B, T, Jt, 9) diffusion space, sigma scalar or (B,) → (B, T, Jt, 9).
+
+        Joint angles of the output are inside the target's limits by construction.
+        """
+        B = x.shape[0]
+        sigma = torch.as_tensor(sigma, dtype=x.dtype, device=x.device).reshape(-1).expand(B)
+        _, _, c_in, c_noise = precondition(sigma, self.cfg.sigma_data)
+        f = self.net(x * c_in.view(-1, 1, 1, 1), c_noise, self.encode(cond), cond.tgt_graph, cond.eta)
+        g = cond.tgt_graph
+        return combine(x, f.to(x.dtype), sigma, self.cfg.sigma_data, g.lower, g.upper, g.mask)
+
+    # ---- physics of a prediction ------------------------------------------------------------
+    def physical(self, d: torch.Tensor) -> torch.Tensor:
+        """Diffusion space → physical canonical features."""
+        return denormalize(d, self.cfg)
+
+    def energy(self, d: torch.Tensor, cond: Conditions, ecfg: EnergyConfig) -> dict[str, torch.Tensor]:
+        """``f_kin`` terms of a denoised sample (B,) each (:func:`mer_models.energy.f_kin`)."""
+        return f_kin(ecfg, cond.tgt_graph, self.physical(d), cond.eta, cond.goal, cond.fps)
+
+    def decode(self, d: torch.Tensor, cond: Conditions) -> dict[str, torch.Tensor]:
+        """A denoised sample → world motion.
+
+        Returns ``q`` (B, T, Jt) [rad] (0 at base, sites, padding), ``base_pos`` (B, T, 3) [m],
+        ``base_rot`` (B, T, 3, 3) world ← base.
+        """
+        p = self.physical(d)
+        q = torch.cat([torch.zeros_like(p[..., :1, 0]), p[..., 1:, 0]], -1) * cond.tgt_graph.revolute[:, None]
+        rot_c = axis_angle_to_matrix(p[..., 0, 0:3])
+        base_rot = cond.rot.transpose(-1, -2)[:, None] @ rot_c
+        base_pos = torch.einsum("bji,btj->bti", cond.rot, p[..., 0, 3:6]) + cond.origin[:, None]
+        return {"q": q, "base_pos": base_pos, "base_rot": base_rot}
+
+    def num_parameters(self) -> int:
+        return sum(p.numel() for p in self.parameters())

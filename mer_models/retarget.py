@@ -1,0 +1,199 @@
+"""Retargeting as a library: a source motion (CSV or arrays) → a target motion, and its files.
+
+:func:`retarget_features` is the core (features in, :class:`~mer_models.writers.TargetMotion`
+out) with two methods:
+
+* ``diffusion``: the guided-diffusion model, long-horizon (:mod:`mer_models.long_horizon`);
+* ``optimize``: the optimisation baseline on the whole motion (:mod:`mer_models.optimize`), no
+  model needed.
+
+:func:`retarget_file` reads the source CSV through the shard tooling's LAFAN1 reader
+(:func:`mer_data.motion_io.read_lafan1_csv`: bad columns, NaNs and the like are refused with the
+file and line), resamples it to the model's 30 Hz when needed, retargets, and writes the outputs
+(:mod:`mer_models.writers`, :mod:`mer_models.plot`).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+
+from mer_data.errors import MerError
+from mer_data.features import motion_features
+from mer_data.fk import skeleton_tensors
+from mer_data.jointmap import joint_map
+from mer_data.registry import get_skeleton, load_robot
+from mer_data.rotations import axis_angle_to_matrix
+from mer_data.skeleton import Skeleton
+
+from .checkpoint import Checkpoint, check_robot, resolve_model
+from .config import EnergyConfig, SamplerConfig
+from .kinematics import graph_from_batch
+from .long_horizon import prepare_reference, retarget_sequence
+from .optimize import DEFAULT_GN_ITERS, DEFAULT_ITERS, optimize_motion
+from .writers import TargetMotion, write_csv, write_mcap, write_npz
+
+log = logging.getLogger(__name__)
+
+__all__ = ["METHODS", "RetargetResult", "source_features", "retarget_features", "retarget_file", "MODEL_FPS"]
+
+METHODS = ("diffusion", "optimize")
+MODEL_FPS = 30.0
+
+
+@dataclass
+class RetargetResult:
+    """What a retargeting produced.
+
+    Attributes:
+        motion: the target motion (world frame).
+        reference_points: (F, K, 3) the scaled reference key points it tracks (world frame) [m].
+        method: ``diffusion`` or ``optimize``.
+        outputs: kind → path of every file written.
+    """
+
+    motion: TargetMotion
+    reference_points: np.ndarray
+    method: str
+    outputs: dict[str, Path] = field(default_factory=dict)
+
+
+def source_features(base_pos: np.ndarray, base_quat: np.ndarray, q: np.ndarray, skel: Skeleton, fps: float) -> np.ndarray:
+    """(F, J, 9) float64 features of a source motion (base pose wxyz, angles per node)."""
+    st = skeleton_tensors(skel, torch.float64)
+    f = motion_features(st, torch.from_numpy(base_pos), torch.from_numpy(base_quat), torch.from_numpy(q), fps)
+    return f.numpy()
+
+
+def _check_finite(feats: np.ndarray) -> None:
+    bad = ~np.isfinite(feats).all(axis=(1, 2))
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise MerError(
+            f"the source motion has non-finite values (frame {i + 1}, {int(bad.sum())} frame(s))",
+            line=i + 1,
+            fix="repair or drop those frames",
+        )
+
+
+def _reference_points(scaled: np.ndarray, shift: np.ndarray, eta: np.ndarray) -> np.ndarray:
+    pairs = np.flatnonzero(eta.any(0))
+    return scaled[:, pairs] + shift
+
+
+def _optimize_sequence(feats, scaled, ref: Skeleton, target: Skeleton, eta, energy: EnergyConfig, fps, iters, gn_iters, device):
+    from mer_data.samples import TrainingSample, collate
+
+    batch = collate([TrainingSample(feats[:3].astype(np.float32), ref, target, eta)])
+    g = graph_from_batch(batch, "tgt", device)
+    goal = torch.from_numpy(scaled).float()[None].to(device)
+    rot = axis_angle_to_matrix(torch.from_numpy(feats[:, 0, 0:3]).float())[None].to(device)
+    eta_t = torch.from_numpy(eta.astype(np.float32))[None].to(device)
+    out = optimize_motion(energy, g, eta_t, goal, rot, iters=iters, gn_iters=gn_iters, fps=fps)
+    return {k: out[k][0].double().cpu().numpy() for k in ("q", "base_pos", "base_rot")}
+
+
+def retarget_features(
+    reference: np.ndarray,
+    source: str | Skeleton,
+    target: str | Skeleton,
+    *,
+    method: str = "diffusion",
+    checkpoint: Checkpoint | None = None,
+    steps: int | None = None,
+    guidance: float | None = None,
+    seed: int = 0,
+    fps: float = MODEL_FPS,
+    allow_unseen: bool = False,
+    opt_iters: int = DEFAULT_ITERS,
+    opt_gn_iters: int = DEFAULT_GN_ITERS,
+    energy: EnergyConfig | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> RetargetResult:
+    """Retarget source features (F, Jr, 9) (world frame, at ``fps``) to ``target``.
+
+    ``checkpoint`` is required for ``diffusion``; ``steps``/``guidance`` override its sampler
+    configuration. ``allow_unseen`` retargets to a robot the model never saw (zero-shot; the
+    paper fine-tunes instead).
+    """
+    if method not in METHODS:
+        raise MerError(f"unknown method {method!r}; known: {', '.join(METHODS)}", fix="use --method diffusion or optimize")
+    ref = get_skeleton(source) if isinstance(source, str) else source
+    tgt = get_skeleton(target) if isinstance(target, str) else target
+    reference = np.asarray(reference, np.float64)
+    if reference.ndim != 3 or reference.shape[1:] != (ref.num_nodes, 9):
+        raise MerError(f"source features have shape {reference.shape}, expected (F, {ref.num_nodes}, 9) for {ref.name!r}")
+    _check_finite(reference)
+    eta = joint_map(tgt, ref)
+    feats, scaled, shift = prepare_reference(reference, ref, tgt)
+    if method == "diffusion":
+        if checkpoint is None:
+            raise MerError("the diffusion method needs a model", fix="pass --model PATH, or use --method optimize")
+        if not allow_unseen:
+            check_robot(checkpoint, tgt.name, "targets", tgt.fingerprint)
+            check_robot(checkpoint, ref.name, "references", ref.fingerprint)
+        run = checkpoint.run
+        sampler = run.sampler if guidance is None else SamplerConfig(**{**run.sampler.__dict__, "guidance": float(guidance)})
+        out = retarget_sequence(
+            checkpoint.model, reference, ref, tgt, sampler, energy=energy or run.energy, fps=fps, steps=steps,
+            seed=seed, eta=eta, progress=progress,
+        )  # fmt: skip
+    else:
+        device = next(checkpoint.model.parameters()).device if checkpoint is not None else torch.device("cpu")
+        energy = energy or (checkpoint.run.energy if checkpoint is not None else EnergyConfig())
+        out = _optimize_sequence(feats, scaled, ref, tgt, eta, energy, fps, opt_iters, opt_gn_iters, device)
+        out["base_pos"] = out["base_pos"] + shift
+    motion = TargetMotion(tgt, fps, out["q"], out["base_pos"], out["base_rot"])
+    return RetargetResult(motion, _reference_points(scaled, shift, eta), method)
+
+
+def retarget_file(
+    input_csv: str | Path,
+    source: str,
+    target: str,
+    *,
+    out_csv: str | Path | None = None,
+    npz: str | Path | None = None,
+    mcap: str | Path | None = None,
+    plot: str | Path | None = None,
+    model: str | Path | None = None,
+    method: str = "diffusion",
+    input_fps: float = MODEL_FPS,
+    device: str = "cpu",
+    **kw,
+) -> RetargetResult:
+    """Read a LAFAN1-layout CSV of ``source``, retarget it to ``target`` and write the outputs.
+
+    Extra keywords go to :func:`retarget_features`. Unknown robots, a CSV that does not match the
+    source's layout, non-finite values, a model that never saw the target: each a MerError.
+    """
+    from mer_data.motion_io import read_lafan1_csv
+    from mer_data.resample import resample
+
+    load_robot(source)
+    tgt_robot = load_robot(target)
+    checkpoint = resolve_model(model, device) if (model is not None and method == "diffusion") else None
+    if method == "diffusion" and checkpoint is None:
+        raise MerError("the diffusion method needs a model", fix="pass --model PATH, or use --method optimize")
+    motion = read_lafan1_csv(input_csv, source, fps=input_fps)
+    if motion.fps != MODEL_FPS:
+        motion = resample(motion, MODEL_FPS)
+    skel = get_skeleton(source)
+    feats = source_features(motion.base_pos, motion.base_quat, motion.node_angles(skel), skel, MODEL_FPS)
+    res = retarget_features(feats, skel, tgt_robot.skeleton, method=method, checkpoint=checkpoint, fps=MODEL_FPS, **kw)
+    if out_csv is not None:
+        res.outputs["csv"] = write_csv(out_csv, res.motion)
+    if npz is not None:
+        res.outputs["npz"] = write_npz(npz, res.motion)
+    if mcap is not None:
+        res.outputs["mcap"] = write_mcap(mcap, res.motion, reference_points=res.reference_points)
+    if plot is not None:
+        from .plot import plot_motion
+
+        res.outputs["png"] = plot_motion(plot, res.motion, reference_points=res.reference_points)
+    return res

@@ -1,0 +1,299 @@
+"""Training: EDM denoising + energy guidance (paper, Eq. 4), checkpoints, exact resume, DDP.
+
+Loss per sample::
+
+    weight(sigma) * mean || D(x + n, sigma, C) - x ||^2  +  lambda * f_kin(D(x + n, sigma, C))
+
+with ``ln sigma ~ N(P_mean, P_std^2)``. ``x`` is the target robot's own window when the data has
+one (``has_target``); otherwise the optimisation baseline's solution on that window (per-frame
+Levenberg-Marquardt IK on the same energy, computed on the fly; docs/model.md says why).
+
+Exact resume: the data order is a pure function of (seed, epoch), the position in the epoch,
+the noise generator, the global torch RNG (dropout) and the optimiser moments are all saved, so
+``train(steps=4)`` and ``train(steps=2)`` + ``train(steps=4, resume=True)`` give the same weights.
+
+Multi-process: under ``torchrun`` (``WORLD_SIZE > 1``) the model is wrapped in
+``DistributedDataParallel`` (gloo on CPU, nccl on CUDA); each rank takes its share of every
+global batch; rank 0 writes the checkpoints and the log.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from safetensors.torch import load_file
+from torch import nn
+from torch.utils.data import DataLoader, Dataset
+
+from mer_data.errors import CheckpointError, ConfigError
+from mer_data.registry import get_skeleton
+from mer_data.rotations import axis_angle_to_matrix
+from mer_data.samples import collate
+
+from .checkpoint import CONFIG, OPTIMIZER, STATE, WEIGHTS, _read_meta, load_weights, save_checkpoint
+from .config import RunConfig, from_dict
+from .edm import denoising_loss, sample_sigma
+from .kinematics import batch_features
+from .model import Conditions, RetargetModel
+from .optimize import optimize_motion
+from .representation import normalize, transform_features
+
+log = logging.getLogger(__name__)
+
+__all__ = ["train", "TrainResult", "clean_samples", "LOG_FILE"]
+
+LOG_FILE = "train_log.jsonl"
+
+
+@dataclass
+class TrainResult:
+    path: Path
+    step: int
+    last: dict[str, float]
+
+
+class _Step(nn.Module):
+    """What DDP wraps: one denoiser evaluation (reference encoding included)."""
+
+    def __init__(self, model: RetargetModel) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(self, x: torch.Tensor, sigma: torch.Tensor, cond: Conditions) -> torch.Tensor:
+        cond.ref_tokens = None
+        return self.model.denoise(x, sigma, cond)
+
+
+class _OrderSampler:
+    """Global batches of indices from step ``start`` on: epoch ``e`` is the permutation drawn from
+    (seed, e), cut into ``n // batch`` batches (the remainder is dropped); this rank takes every
+    ``world``-th index of each batch. A pure function of the step, so resuming needs only the step."""
+
+    def __init__(self, n: int, batch: int, seed: int, start: int, rank: int, world: int) -> None:
+        if n < batch:
+            raise ConfigError(
+                f"the dataset has {n} samples, fewer than one batch of {batch}",
+                element="train.batch_size",
+                fix="use a smaller --batch-size or more data",
+            )
+        self.n, self.batch, self.seed, self.start, self.rank, self.world = n, batch, seed, start, rank, world
+        self.per_epoch = n // batch
+
+    def __iter__(self):
+        step = self.start
+        while True:
+            epoch, k = divmod(step, self.per_epoch)
+            order = np.random.default_rng([self.seed, epoch]).permutation(self.n)
+            idx = order[k * self.batch : (k + 1) * self.batch]
+            yield [int(i) for i in idx[self.rank :: self.world]]
+            step += 1
+
+
+def clean_samples(model: RetargetModel, batch: Mapping, cond: Conditions, run: RunConfig) -> torch.Tensor:
+    """The clean ``x`` of every sample (diffusion space, canonical frame).
+
+    The target window where the batch has one; else the optimisation baseline's solution
+    (``run.train.opt_iters`` Levenberg-Marquardt iterations from the nominal pose).
+    """
+    has = batch["has_target"].to(cond.rot.device)
+    x = model.target_sample(batch["target"], cond)
+    if bool((~has).any()):
+        with torch.no_grad():
+            sel = torch.nonzero(~has).flatten()
+            g = cond.tgt_graph.select(sel)
+            ref = model.physical(cond.reference[sel])
+            out = optimize_motion(
+                run.energy, g, cond.eta[sel], cond.goal[sel], axis_angle_to_matrix(ref[:, :, 0, 0:3]),
+                iters=0, gn_iters=run.train.opt_iters, fps=cond.fps,
+            )
+            feats = batch_features(g, out["q"], out["base_pos"], out["base_rot"], cond.fps)
+            eye = torch.eye(3, device=feats.device).expand(len(sel), 3, 3)
+            feats = transform_features(feats, eye, torch.zeros(len(sel), 3, device=feats.device))  # unwrap rotvecs
+            x = x.index_copy(0, sel, normalize(feats, model.cfg) * g.mask[:, None, :, None])
+    return x
+
+
+def _dist() -> tuple[int, int]:
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world > 1 and not dist.is_initialized():
+        dist.init_process_group("nccl" if torch.cuda.is_available() and os.environ.get("MER_DDP_BACKEND") != "gloo" else "gloo")
+    return (dist.get_rank(), dist.get_world_size()) if world > 1 else (0, 1)
+
+
+def _lr(run: RunConfig, step: int) -> float:
+    w = run.train.warmup
+    return run.train.lr * (min(1.0, (step + 1) / w) if w > 0 else 1.0)
+
+
+def _fingerprint(name: str) -> str:
+    try:
+        return get_skeleton(name).fingerprint
+    except Exception:  # noqa: BLE001 - a robot from a shard that is not registered here
+        return ""
+
+
+def _resume_state(out: Path, run: RunConfig, model: RetargetModel, opt: torch.optim.Optimizer, rank: int, world: int):
+    meta = _read_meta(out)
+    saved = from_dict(meta["run"])
+    if saved != run:
+        a, b = saved.to_dict(), run.to_dict()
+        diff = [f"{s}.{k}" for s in a if isinstance(a[s], dict) for k in a[s] if a[s][k] != b[s][k]]
+        diff += [s for s in a if not isinstance(a[s], dict) and a[s] != b[s]]
+        raise ConfigError(
+            f"cannot resume: the configuration differs from the checkpoint's in {', '.join(diff)}",
+            path=out / CONFIG,
+            element=diff[0] if diff else None,
+            fix="resume with the same --config and options, or train into a new --out folder",
+        )
+    if not (out / OPTIMIZER).is_file() or not (out / STATE).is_file():
+        raise CheckpointError("the checkpoint has no optimiser state to resume from", path=out, fix="train into a new --out folder")
+    load_weights(model, out / WEIGHTS)
+    state = json.loads((out / STATE).read_text())
+    if state.get("world_size", 1) != world:
+        raise ConfigError(
+            f"the checkpoint was trained with {state.get('world_size')} processes, not {world}",
+            element="world_size",
+            fix="resume with the same number of processes (the data order depends on it)",
+        )
+    tensors = load_file(str(out / OPTIMIZER))
+    sd_state: dict[int, dict[str, torch.Tensor]] = {}
+    for k, v in tensors.items():
+        if k.startswith("state."):
+            _, idx, name = k.split(".", 2)
+            sd_state.setdefault(int(idx), {})[name] = v
+    try:
+        opt.load_state_dict({"state": sd_state, "param_groups": state["param_groups"]})
+    except (ValueError, KeyError) as exc:
+        raise CheckpointError(f"the optimiser state does not match the model: {exc}", path=out / OPTIMIZER) from None
+    rng = {k[4:]: v for k, v in tensors.items() if k.startswith("rng.")}
+    return meta, state, rng
+
+
+def train(
+    run: RunConfig,
+    dataset: Dataset,
+    out: str | Path,
+    *,
+    steps: int,
+    resume: bool = False,
+    device: str = "cpu",
+    bf16: bool = False,
+    num_workers: int = 0,
+    data_info: Mapping[str, Any] | None = None,
+    progress: Callable[[dict], None] | None = None,
+) -> TrainResult:
+    """Train (or resume) until ``steps`` total steps; the checkpoint folder is ``out``.
+
+    Args:
+        run: the configuration (a preset, possibly modified).
+        dataset: a Dataset of :class:`~mer_data.samples.TrainingSample` (e.g. ``ShardDataset``).
+        steps: total optimiser steps (on resume: including those already done).
+        data_info: recorded in ``config.json`` (shards, split, ...).
+        progress: called on rank 0 with each log record.
+    """
+    out = Path(out)
+    rank, world = _dist()
+    if run.train.batch_size % world:
+        raise ConfigError(
+            f"batch size {run.train.batch_size} is not divisible by {world} processes", element="train.batch_size"
+        )
+    dev = torch.device(device)
+    torch.manual_seed(run.train.seed)
+    model = RetargetModel(run.model).to(dev)
+    opt = torch.optim.AdamW(model.parameters(), lr=run.train.lr, weight_decay=run.train.weight_decay)
+    noise_gen = torch.Generator(device=dev).manual_seed(run.train.seed * 1000 + rank)
+    step = 0
+    robots: dict[str, dict[str, str]] = {"targets": {}, "references": {}}
+    if resume:
+        if not (out / CONFIG).is_file():
+            raise CheckpointError(f"nothing to resume in {out}", path=out, fix="drop --resume to start a new run")
+        meta, state, rng = _resume_state(out, run, model, opt, rank, world)
+        step = int(state["step"])
+        robots = {k: dict(v) for k, v in meta["robots"].items()}
+        noise_gen.set_state(rng[f"noise.{rank}"])
+        torch.set_rng_state(rng[f"torch.{rank}"])
+    elif (out / CONFIG).exists():
+        raise CheckpointError(f"{out} already holds a checkpoint", path=out, fix="pass --resume to continue it, or choose another --out")
+    net: nn.Module = _Step(model)
+    if world > 1:
+        net = nn.parallel.DistributedDataParallel(net)
+    sampler = _OrderSampler(len(dataset), run.train.batch_size, run.train.seed, step, rank, world)
+    start_step = step
+    loader = iter(DataLoader(dataset, batch_sampler=sampler, collate_fn=collate, num_workers=num_workers))
+    logf = out / LOG_FILE
+    last: dict[str, float] = {}
+    t0 = time.time()
+
+    def save() -> None:
+        rngs = {f"noise.{rank}": noise_gen.get_state(), f"torch.{rank}": torch.get_rng_state()}
+        if world > 1:
+            gathered: list[Any] = [None] * world
+            dist.all_gather_object(gathered, rngs)
+            rngs = {k: v for d in gathered for k, v in d.items()}
+        if rank != 0:
+            return
+        log_text = logf.read_text() if logf.is_file() else ""
+        save_checkpoint(
+            out, model, run, robots=robots, data=data_info, metrics={"train": last}, step=step, optimizer=opt,
+            trainer_state={"step": step, "epoch": step // sampler.per_epoch, "world_size": world},
+            rng_tensors=rngs,
+        )
+        (out / LOG_FILE).write_text(log_text)
+
+    model.train()
+    while step < steps:
+        batch = next(loader)
+        for side, key in (("targets", "tgt_names"), ("references", "ref_names")):
+            for name in batch[key]:
+                if name not in robots[side]:
+                    robots[side][name] = _fingerprint(name)
+        for g in opt.param_groups:
+            g["lr"] = _lr(run, step)
+        cond = model.conditions(batch)
+        x = clean_samples(model, batch, cond, run)
+        B = x.shape[0]
+        sigma = sample_sigma(B, run.train.p_mean, run.train.p_std, noise_gen, dev)
+        noise = torch.randn(x.shape, generator=noise_gen, device=dev) * sigma.view(-1, 1, 1, 1)
+        with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=bf16):
+            d = net(x + noise, sigma, cond)
+        d = d.float()
+        l_edm = denoising_loss(d, x, sigma, run.model.sigma_data, cond.tgt_graph.mask)
+        energy = model.energy(d, cond, run.energy)
+        loss = (l_edm + run.energy.lam * energy["total"]).mean()
+        if not torch.isfinite(loss):
+            raise FloatingPointError(f"non-finite loss at step {step}; lower --lr or check the data")
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        gnorm = torch.nn.utils.clip_grad_norm_(model.parameters(), run.train.grad_clip)
+        opt.step()
+        step += 1
+        last = {"step": step, "loss": loss.item(), "edm": l_edm.mean().item(), "grad_norm": gnorm.item(), "lr": opt.param_groups[0]["lr"]}
+        last.update({f"f_{k}": v.mean().item() for k, v in energy.items()})
+        if world > 1:
+            gathered = [None] * world
+            dist.all_gather_object(gathered, robots)
+            for other in gathered:
+                for side in robots:
+                    robots[side].update(other[side])
+        if rank == 0 and (step % run.train.log_every == 0 or step == steps):
+            last["sec_per_step"] = (time.time() - t0) / max(1, step - start_step)
+            out.mkdir(parents=True, exist_ok=True)
+            with open(logf, "a") as fh:
+                fh.write(json.dumps(last) + "\n")
+            log.info("step %d loss %.4f edm %.4f f_kin %.5f", step, last["loss"], last["edm"], last["f_total"])
+            if progress is not None:
+                progress(last)
+        if step % run.train.save_every == 0 or step == steps:
+            save()
+    if world > 1:
+        dist.barrier()
+    return TrainResult(out, step, last)

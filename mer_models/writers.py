@@ -1,0 +1,206 @@
+"""Writers of a retargeted motion: LAFAN1-style CSV, BeyondMimic npz, Foxglove MCAP.
+
+All take a :class:`TargetMotion` and write atomically (temporary file, then rename).
+
+**CSV** (no header, comma separated, 6 decimals, one row per frame)::
+
+    root x, y, z [m], root quaternion x, y, z, w (scalar last), joint angles [rad]
+
+The joints are in the order of the robot card's ``lafan1_columns`` when it has one (g1, h1,
+h1_2: the LAFAN1 robot layout), else in the skeleton's node order (``Skeleton.joint_names``: the
+actuated URDF joints, depth-first; ``mer robots show NAME`` lists them). :func:`csv_columns` gives
+the order.
+
+**npz** (BeyondMimic / mjlab ``csv_to_npz`` keys, at the motion's fps): ``fps``, ``joint_pos``
+(F, D), ``joint_vel`` (F, D), ``body_pos_w`` (F, L, 3), ``body_quat_w`` (F, L, 4, **wxyz**),
+``body_lin_vel_w``, ``body_ang_vel_w`` (F, L, 3, world frame), plus ``joint_names`` (D,) (the CSV's
+joint order) and ``body_names`` (L,): the URDF links of the base and of every joint node.
+
+**MCAP**: JSON channels ``/tf`` (``foxglove.FrameTransforms``, one message per frame) and
+``/skeleton`` (``foxglove.SceneUpdate``), plus ``/reference`` (``foxglove.SceneUpdate`` spheres at
+the scaled reference key points) when given. Foxglove's 3D panel shows them as they are.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from mer_data.features import finite_difference
+from mer_data.fk import fk_skeleton, link_rotations, skeleton_tensors
+from mer_data.registry import load_robot
+from mer_data.rotations import matrix_to_axis_angle, matrix_to_quat
+from mer_data.skeleton import Skeleton
+
+__all__ = ["TargetMotion", "csv_columns", "write_csv", "write_npz", "write_mcap", "atomic_write"]
+
+
+@dataclass(frozen=True)
+class TargetMotion:
+    """A retargeted motion of one robot, world frame.
+
+    Attributes:
+        skeleton: the target skeleton.
+        fps: [Hz].
+        q: (F, J) float64 angle per node [rad] (0 at base and sites).
+        base_pos: (F, 3) [m]; base_rot: (F, 3, 3) world ← base.
+    """
+
+    skeleton: Skeleton
+    fps: float
+    q: np.ndarray
+    base_pos: np.ndarray
+    base_rot: np.ndarray
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.q.shape[0])
+
+    def base_quat(self) -> np.ndarray:
+        """(F, 4) wxyz."""
+        return matrix_to_quat(torch.from_numpy(np.asarray(self.base_rot, np.float64))).numpy()
+
+    def forward_kinematics(self) -> tuple[np.ndarray, np.ndarray]:
+        """Node positions (F, J, 3) and rotations (F, J, 3, 3) (node frames), float64."""
+        st = skeleton_tensors(self.skeleton, torch.float64)
+        pos, rot = fk_skeleton(
+            st, torch.from_numpy(self.q), torch.from_numpy(self.base_pos), base_rot=torch.from_numpy(self.base_rot)
+        )
+        return pos.numpy(), rot.numpy()
+
+
+def atomic_write(path: str | Path, data: bytes) -> Path:
+    """Write bytes to ``path`` via a temporary file in the same folder and a rename."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def csv_columns(skel: Skeleton) -> tuple[str, ...]:
+    """The joint order of the CSV: the card's ``lafan1_columns`` if any, else node order."""
+    try:
+        cols = load_robot(skel.name).card.lafan1_columns
+    except Exception:  # noqa: BLE001 - an unregistered (e.g. augmented or test) skeleton
+        cols = None
+    if cols and set(cols) == set(skel.joint_names):
+        return tuple(cols)
+    return skel.joint_names
+
+
+def _joint_matrix(motion: TargetMotion, cols: tuple[str, ...]) -> np.ndarray:
+    idx = [motion.skeleton.node_index(c) for c in cols]
+    return np.asarray(motion.q, np.float64)[:, idx]
+
+
+def write_csv(path: str | Path, motion: TargetMotion, *, decimals: int = 6) -> Path:
+    """The target's LAFAN1-style CSV (see module docstring)."""
+    cols = csv_columns(motion.skeleton)
+    quat = motion.base_quat()
+    table = np.column_stack([motion.base_pos, quat[:, 1:4], quat[:, :1], _joint_matrix(motion, cols)])
+    buf = io.StringIO()
+    np.savetxt(buf, table, fmt=f"%.{decimals}f", delimiter=",")
+    return atomic_write(path, buf.getvalue().encode())
+
+
+def _angular_velocity(rot: np.ndarray, fps: float) -> np.ndarray:
+    """(F, L, 3, 3) → (F, L, 3) world angular velocity [rad/s] (central differences, one-sided ends)."""
+    r = torch.from_numpy(rot)
+    F = r.shape[0]
+    if F < 2:
+        return np.zeros(rot.shape[:-1])
+    nxt = torch.cat([r[1:], r[-1:]])
+    prv = torch.cat([r[:1], r[:-1]])
+    dt = torch.full((F,), 2.0 / fps, dtype=r.dtype)
+    dt[0] = dt[-1] = 1.0 / fps
+    w = matrix_to_axis_angle(nxt @ prv.transpose(-1, -2))  # world-frame increment
+    return (w / dt[:, None, None]).numpy()
+
+
+def body_arrays(motion: TargetMotion) -> dict[str, np.ndarray]:
+    """Body (URDF link) poses and velocities of the base and every joint node."""
+    skel = motion.skeleton
+    pos, rot = motion.forward_kinematics()
+    links = [j for j in range(skel.num_nodes) if skel.node_kinds[j] != "site"]
+    lrot = link_rotations(torch.from_numpy(rot), torch.from_numpy(np.array(skel.rest_rotations))).numpy()[:, links]
+    bpos = pos[:, links]
+    return {
+        "body_names": np.array([skel.link_names[j] for j in links]),
+        "body_pos_w": bpos,
+        "body_quat_w": matrix_to_quat(torch.from_numpy(lrot)).numpy(),
+        "body_lin_vel_w": finite_difference(torch.from_numpy(bpos), motion.fps, dim=0).numpy(),
+        "body_ang_vel_w": _angular_velocity(lrot, motion.fps),
+    }
+
+
+def write_npz(path: str | Path, motion: TargetMotion) -> Path:
+    """BeyondMimic-style npz (see module docstring)."""
+    cols = csv_columns(motion.skeleton)
+    jp = _joint_matrix(motion, cols)
+    arrays = {
+        "fps": np.array(motion.fps),
+        "joint_pos": jp.astype(np.float32),
+        "joint_vel": finite_difference(torch.from_numpy(jp), motion.fps, dim=0).numpy().astype(np.float32),
+        "joint_names": np.array(cols),
+    }
+    for k, v in body_arrays(motion).items():
+        arrays[k] = v if k == "body_names" else v.astype(np.float32)
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    return atomic_write(path, buf.getvalue())
+
+
+def write_mcap(path: str | Path, motion: TargetMotion, *, reference_points: np.ndarray | None = None) -> Path:
+    """Foxglove MCAP of the motion (see module docstring).
+
+    ``reference_points``: (F, K, 3) scaled reference key points [m] drawn as red spheres.
+    """
+    from mcap.writer import Writer
+
+    from mer_data.shards.foxglove import FRAME_TRANSFORMS_SCHEMA, SCENE_UPDATE_SCHEMA, frame_transforms, scene_update
+
+    skel = motion.skeleton
+    prefix = skel.name
+    base_rotvec = matrix_to_axis_angle(torch.from_numpy(motion.base_rot)).numpy()
+    buf = io.BytesIO()
+    w = Writer(buf)
+    w.start(profile="", library="mer")
+    tf_schema = w.register_schema("foxglove.FrameTransforms", "jsonschema", FRAME_TRANSFORMS_SCHEMA)
+    sc_schema = w.register_schema("foxglove.SceneUpdate", "jsonschema", SCENE_UPDATE_SCHEMA)
+    tf = w.register_channel("/tf", "json", tf_schema)
+    sk = w.register_channel("/skeleton", "json", sc_schema)
+    frames = frame_transforms(skel, prefix, motion.base_pos, base_rotvec, motion.q, 0, motion.fps)
+    w.add_message(sk, log_time=0, publish_time=0, data=scene_update(skel, prefix, 0))
+    for seq, (ns, data) in enumerate(frames):
+        w.add_message(tf, log_time=ns, publish_time=ns, data=data, sequence=seq)
+    if reference_points is not None:
+        rc = w.register_channel("/reference", "json", sc_schema)
+        for seq, (ns, _) in enumerate(frames):
+            pts = reference_points[seq]
+            spheres = [
+                {"pose": {"position": {"x": float(p[0]), "y": float(p[1]), "z": float(p[2])},
+                          "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}},
+                 "size": {"x": 0.04, "y": 0.04, "z": 0.04}, "color": {"r": 1.0, "g": 0.1, "b": 0.1, "a": 0.8}}
+                for p in pts
+            ]  # fmt: skip
+            msg = {"deletions": [], "entities": [{
+                "timestamp": {"sec": int(ns // 10**9), "nsec": int(ns % 10**9)}, "frame_id": "world", "id": "reference",
+                "lifetime": {"sec": 0, "nsec": 0}, "frame_locked": False, "metadata": [], "arrows": [], "cubes": [],
+                "spheres": spheres, "cylinders": [], "lines": [], "triangles": [], "texts": [], "models": []}]}  # fmt: skip
+            w.add_message(rc, log_time=ns, publish_time=ns, data=json.dumps(msg, separators=(",", ":")).encode(), sequence=seq)
+    w.finish()
+    return atomic_write(path, buf.getvalue())

@@ -1,0 +1,62 @@
+"""Shared helpers of the model tests: synthetic batches, a tiny configuration, a tiny checkpoint."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from mer_data.jointmap import joint_map
+from mer_data.registry import get_skeleton
+from mer_data.samples import TrainingSample, collate
+from mer_models.config import ModelConfig, RunConfig, preset
+from mer_models.synthetic import SyntheticDataset, _features, _origin_normalize, synthetic_motion
+
+#: a very small network for unit tests (same architecture, seconds on CPU)
+MICRO = ModelConfig(hidden=24, layers=1, heads=2, cross_heads_per_condition=1, ffn=32, dropout=0.0, frames=60)
+
+
+def micro_run(batch_size: int = 4) -> RunConfig:
+    run = preset("tiny")
+    return run.replace(
+        name="micro",
+        model=MICRO,
+        train=dataclasses.replace(run.train, batch_size=batch_size, warmup=2, save_every=1000, log_every=1, opt_iters=3),
+    )
+
+
+def synthetic_window(source: str = "g1", frames: int = 60, seed: int = 0) -> np.ndarray:
+    """(T, J, 9) float32 origin-normalized features of a synthetic motion of ``source``."""
+    s = get_skeleton(source)
+    return _origin_normalize(_features(s, synthetic_motion(s, frames, seed=seed), 30.0)).astype(np.float32)
+
+
+def mixed_batch(targets=("g1", "h1", "tron1"), source="g1", frames=60, seed=0, augment_first=False) -> dict:
+    """A collated batch: one synthetic window of ``source`` retargeted to each target."""
+    ref = get_skeleton(source)
+    samples = []
+    for k, t in enumerate(targets):
+        tgt = get_skeleton(t)
+        if augment_first and k == 0:
+            tgt = tgt.with_link_scales(np.linspace(0.7, 1.4, tgt.num_nodes))
+        w = synthetic_window(source, frames, seed + k)
+        same = t == source and not (augment_first and k == 0)
+        samples.append(TrainingSample(w, ref, tgt, joint_map(tgt, ref), w.copy() if same else None))
+    return collate(samples)
+
+
+def dataset(targets=("g1", "h1", "tron1"), size=16, seed=0) -> SyntheticDataset:
+    return SyntheticDataset("g1", targets, size=size, augment=True, seed=seed)
+
+
+@pytest.fixture(scope="session")
+def micro_checkpoint(tmp_path_factory):
+    """A micro model trained 3 steps on synthetic G1 → {g1, h1, tron1} windows."""
+    from mer_models.train import train
+
+    out = tmp_path_factory.mktemp("ckpt") / "micro"
+    torch.manual_seed(0)
+    train(micro_run(), dataset(), out, steps=3)
+    return out

@@ -1,0 +1,126 @@
+"""`mer train`, `mer retarget`, `mer evaluate` end to end through main(argv), and their refusals."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+import torch
+
+from mer_data.registry import get_skeleton
+from mer_data.rotations import quat_to_matrix
+from mer_models.cli import main
+from mer_models.synthetic import synthetic_motion
+from mer_models.writers import TargetMotion, write_csv
+
+from model_helpers import micro_checkpoint  # noqa: F401 (fixture)
+
+
+def run(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def _csv(path, robot="g1", frames=90, seed=0):
+    s = get_skeleton(robot)
+    m = synthetic_motion(s, frames, seed=seed)
+    rot = quat_to_matrix(torch.from_numpy(m["base_quat"])).numpy()
+    return write_csv(path, TargetMotion(s, 30.0, m["q"], m["base_pos"], rot))
+
+
+def test_train_command_writes_a_checkpoint(tmp_path, capsys):
+    code, out, err = run(capsys, "train", "--config", "tiny", "--synthetic", "8", "--steps", "2", "--batch-size", "4", "--log-every", "1", "--out", tmp_path / "c")
+    assert code == 0, err
+    assert "checkpoint" in out and "step      2" in err
+    meta = json.loads((tmp_path / "c" / "config.json").read_text())
+    assert meta["run"]["name"] == "tiny" and meta["data"]["synthetic"] == 8
+
+
+def test_retarget_writes_every_output_within_limits(tmp_path, capsys, micro_checkpoint):  # noqa: F811
+    src = _csv(tmp_path / "walk.csv")
+    out = tmp_path / "out"
+    code, o, err = run(capsys, "retarget", src, "--source", "g1", "--target", "h1", "--model", micro_checkpoint,
+                       "-o", out / "h1.csv", "--npz", out / "h1.npz", "--mcap", out / "h1.mcap", "--plot", out / "h1.png", "--steps", "3")  # fmt: skip
+    assert code == 0, err
+    for ext in ("csv", "npz", "mcap", "png"):
+        assert (out / f"h1.{ext}").stat().st_size > 0
+    a = np.loadtxt(out / "h1.csv", delimiter=",")
+    h1 = get_skeleton("h1")
+    assert a.shape == (90, 7 + 19)
+    from mer_models.writers import csv_columns
+
+    idx = [h1.node_index(n) for n in csv_columns(h1)]
+    assert (a[:, 7:] >= h1.lower[idx] - 1e-5).all() and (a[:, 7:] <= h1.upper[idx] + 1e-5).all()
+
+
+def test_retarget_with_the_optimisation_baseline_needs_no_model(tmp_path, capsys):
+    src = _csv(tmp_path / "walk.csv", frames=40)
+    code, _, err = run(capsys, "retarget", src, "--source", "g1", "--target", "tron1", "--method", "optimize", "-o", tmp_path / "t.csv")
+    assert code == 0, err
+    assert np.loadtxt(tmp_path / "t.csv", delimiter=",").shape == (40, 7 + 8)
+
+
+@pytest.mark.parametrize(
+    "case, expect",
+    [
+        ("unknown_robot", "unknown robot 'r2d2'"),
+        ("wrong_columns", "h1.csv"),
+        ("nan", "walk.csv:5"),
+        ("unseen", "mer finetune"),
+        ("config", "model.relative_bias"),
+        ("no_model", "--method optimize"),
+    ],
+)
+def test_bad_input_is_a_clear_error(tmp_path, capsys, micro_checkpoint, case, expect):  # noqa: F811
+    src = _csv(tmp_path / "walk.csv", frames=30)
+    args = ["retarget", src, "--source", "g1", "--target", "h1", "--model", micro_checkpoint, "-o", tmp_path / "o.csv"]
+    if case == "unknown_robot":
+        args[5] = "r2d2"
+    elif case == "wrong_columns":
+        args[1] = _csv(tmp_path / "h1.csv", robot="h1", frames=30)  # an H1 file given as G1
+    elif case == "nan":
+        lines = src.read_text().splitlines()
+        cells = lines[4].split(",")
+        cells[9] = "nan"
+        lines[4] = ",".join(cells)
+        src.write_text("\n".join(lines) + "\n")
+    elif case == "unseen":
+        args[5] = "valkyrie"
+    elif case == "config":
+        ck = tmp_path / "ck"
+        shutil.copytree(micro_checkpoint, ck)
+        meta = json.loads((ck / "config.json").read_text())
+        meta["run"]["model"]["relative_bias"] = True
+        (ck / "config.json").write_text(json.dumps(meta))
+        args[7] = ck
+    elif case == "no_model":
+        args = args[:6] + args[8:]
+    code, _, err = run(capsys, *args)
+    assert code == 1 and err.startswith("error:"), err
+    assert expect in err, err
+    assert not (tmp_path / "o.csv").exists()
+
+
+def test_evaluate_prints_the_papers_table(tmp_path, capsys, micro_checkpoint):  # noqa: F811
+    data = tmp_path / "data"
+    clips = ["dance1_subject1", "fallAndGetUp1_subject1", "fight1_subject2", "walk1_subject1"]
+    for k, clip in enumerate(clips):
+        _csv(data / "g1" / f"{clip}.csv", "g1", frames=120, seed=k)
+        _csv(data / "h1" / f"{clip}.csv", "h1", frames=120, seed=10 + k)
+    code, out, err = run(capsys, "evaluate", "--model", micro_checkpoint, "--input", data, "--source", "g1",
+                         "--targets", "g1", "h1", "tron1", "--max-windows", "2", "--steps", "2", "--save", tmp_path / "r.json",
+                         "--opt-iters", "10", "--opt-gn-iters", "10")  # fmt: skip
+    assert code == 0, err
+    assert "in-domain" in out and "out-of-domain" in out and "E_g-mpbpe [m]" in out
+    report = json.loads((tmp_path / "r.json").read_text())
+    rows = {(r["robot"], r["domain"], r["method"]) for r in report["rows"]}
+    assert len(rows) == 3 * 2 * 2
+    g1_opt = next(r for r in report["rows"] if r["robot"] == "g1" and r["method"] == "optimize" and r["domain"] == "in-domain")
+    assert g1_opt["metrics"]["g_mpbpe"]["mean"] < 0.02  # the baseline tracks a reachable reference
+    assert g1_opt["metrics"]["gt_mpbpe"]["n"] == 2  # G1 data is the ground truth of G1 targets
+    assert all(r["metrics"]["limit_violation"]["mean"] == 0 for r in report["rows"])
+    code, out, _ = run(capsys, "evaluate", "--input", data, "--targets", "tron1", "--max-windows", "1", "--json", "--opt-iters", "2", "--opt-gn-iters", "2")
+    assert code == 0 and json.loads(out)["rows"][0]["method"] == "optimize"

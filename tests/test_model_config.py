@@ -1,0 +1,67 @@
+"""Model configuration: presets, validation, strict JSON round trip."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from mer_data.errors import ConfigError
+from mer_models.config import ModelConfig, SamplerConfig, from_dict, preset
+
+
+def test_paper_preset_is_the_papers_configuration():
+    run = preset("paper")
+    m = run.model
+    assert (m.hidden, m.layers, m.heads, m.ffn, m.window, m.frames) == (240, 4, 6, 1024, 31, 60)
+    assert run.train.batch_size == 16
+    assert run.sampler.steps <= 20
+    assert (run.train.p_mean, run.train.p_std, m.sigma_data) == (0.0, 1.5, 0.5)
+
+
+def test_unknown_preset_lists_the_known_ones():
+    with pytest.raises(ConfigError, match="tiny, paper|paper, tiny"):
+        preset("huge")
+
+
+@pytest.mark.parametrize(
+    "kw, field",
+    [({"hidden": 50, "heads": 6}, "hidden"), ({"window": 30}, "window"), ({"layers": 0}, "layers"), ({"dropout": 1.0}, "dropout")],
+)
+def test_invalid_values_name_the_field(kw, field):
+    with pytest.raises(ConfigError) as e:
+        ModelConfig(**kw)
+    assert f"ModelConfig.{field}" in str(e.value)
+
+
+def test_sampler_validation():
+    with pytest.raises(ConfigError, match="SamplerConfig.sigma_min"):
+        SamplerConfig(sigma_min=100.0)
+
+
+@pytest.mark.parametrize("name", ["tiny", "paper"])
+def test_json_round_trip(name):
+    run = preset(name)
+    assert from_dict(json.loads(json.dumps(run.to_dict()))) == run
+
+
+def test_unknown_missing_and_mistyped_fields_are_refused_by_name():
+    d = preset("tiny").to_dict()
+    d["model"]["attention_kind"] = "flash"
+    with pytest.raises(ConfigError) as e:
+        from_dict(d)
+    assert "model.attention_kind" in str(e.value)
+    d = preset("tiny").to_dict()
+    del d["energy"]["w_vel"]
+    with pytest.raises(ConfigError) as e:
+        from_dict(d)
+    assert "energy.w_vel" in str(e.value)
+    d = preset("tiny").to_dict()
+    d["model"]["layers"] = "two"
+    with pytest.raises(ConfigError) as e:
+        from_dict(d)
+    assert "model.layers" in str(e.value)
+    d = preset("tiny").to_dict()
+    d["extra_section"] = {}
+    with pytest.raises(ConfigError, match="extra_section"):
+        from_dict(d)

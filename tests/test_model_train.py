@@ -1,0 +1,94 @@
+"""Training: losses, exact resume, refusals, the paper configuration, DDP under torchrun."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from safetensors.torch import load_file
+
+from mer_data.errors import CheckpointError, ConfigError
+from mer_models.config import preset
+from mer_models.train import clean_samples, train
+from mer_models.model import RetargetModel
+
+from model_helpers import MICRO, dataset, micro_run, mixed_batch
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_training_logs_losses_and_writes_a_checkpoint(tmp_path):
+    res = train(micro_run(), dataset(), tmp_path / "c", steps=2)
+    assert res.step == 2
+    lines = [json.loads(x) for x in (tmp_path / "c" / "train_log.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in lines] == [1, 2]
+    for k in ("loss", "edm", "f_kp", "f_cst", "f_vel", "f_norm", "f_total", "grad_norm", "lr"):
+        assert all(torch.isfinite(torch.tensor(r[k])) for r in lines), k
+
+
+def test_resume_is_exact(tmp_path):
+    run = micro_run()
+    train(run, dataset(), tmp_path / "a", steps=4)
+    train(run, dataset(), tmp_path / "b", steps=2)
+    train(run, dataset(), tmp_path / "b", steps=4, resume=True)
+    a, b = load_file(str(tmp_path / "a" / "model.safetensors")), load_file(str(tmp_path / "b" / "model.safetensors"))
+    assert a.keys() == b.keys()
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert json.loads((tmp_path / "b" / "trainer_state.json").read_text())["step"] == 4
+
+
+def test_resume_refuses_another_configuration(tmp_path):
+    run = micro_run()
+    train(run, dataset(), tmp_path / "a", steps=1)
+    other = run.replace(train=dataclasses.replace(run.train, lr=0.5))
+    with pytest.raises(ConfigError, match="train.lr"):
+        train(other, dataset(), tmp_path / "a", steps=2, resume=True)
+
+
+def test_existing_checkpoint_needs_resume(tmp_path):
+    train(micro_run(), dataset(), tmp_path / "a", steps=1)
+    with pytest.raises(CheckpointError, match="--resume"):
+        train(micro_run(), dataset(), tmp_path / "a", steps=2)
+    with pytest.raises(CheckpointError, match="nothing to resume"):
+        train(micro_run(), dataset(), tmp_path / "new", steps=2, resume=True)
+
+
+def test_clean_sample_is_the_data_or_the_optimisation_baseline():
+    run = micro_run()
+    m = RetargetModel(MICRO)
+    b = mixed_batch(("g1", "h1"))
+    cond = m.conditions(b)
+    x = clean_samples(m, b, cond, run)
+    torch.testing.assert_close(x[0], m.target_sample(b["target"], cond)[0])  # G1: its own window
+    e = m.energy(x, cond, run.energy)
+    assert float(e["cst"][1]) < 1e-6  # H1: FK-consistent features of the IK solution
+    assert float(e["kp"][1]) < 0.02
+
+
+@pytest.mark.slow
+def test_paper_configuration_trains_on_cpu(tmp_path):
+    run = preset("paper")
+    run = run.replace(train=dataclasses.replace(run.train, batch_size=2, opt_iters=2))
+    res = train(run, dataset(("h1",), size=4), tmp_path / "p", steps=1)
+    assert res.step == 1 and (tmp_path / "p" / "model.safetensors").stat().st_size > 20e6
+
+
+@pytest.mark.slow
+def test_ddp_under_torchrun_with_gloo(tmp_path):
+    out = tmp_path / "ddp"
+    env = {**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1", "MER_DDP_BACKEND": "gloo"}
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
+           "-m", "mer_models", "train", "--config", "tiny", "--synthetic", "8", "--steps", "2", "--batch-size", "2",
+           "--out", str(out)]  # fmt: skip
+    r = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=180, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-3000:]
+    state = json.loads((out / "trainer_state.json").read_text())
+    assert state["world_size"] == 2 and state["step"] == 2
+    rng = load_file(str(out / "optimizer.safetensors"))
+    assert {"rng.noise.0", "rng.noise.1", "rng.torch.0", "rng.torch.1"} <= set(rng)
