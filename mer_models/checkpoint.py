@@ -174,7 +174,7 @@ def load_weights(model: torch.nn.Module, file: str | Path) -> None:
     """Load a safetensors file into ``model``, strictly (missing/unexpected/shape → CheckpointError)."""
     file = Path(file)
     if not file.is_file():
-        raise CheckpointError(f"the weights file is missing", path=file, fix="the checkpoint folder is incomplete; copy it again")
+        raise CheckpointError("the weights file is missing", path=file, fix="the checkpoint folder is incomplete; copy it again")
     try:
         sd = load_file(str(file))
     except (SafetensorError, OSError, ValueError) as exc:
