@@ -14,7 +14,12 @@ line prints ``str(error)`` and exits non-zero; library callers can catch the cla
     ├── RegistryError
     │   ├── UnknownRobotError       lists the known robots
     │   └── RobotExistsError
-    └── MotionFormatError           motion files (CSV) that do not match the robot
+    ├── MotionFormatError           motion files (CSV) that do not match the robot
+    └── ModelZooError               model registry (cards), Hub downloads and publishing
+        ├── UnknownModelError       lists the known models
+        ├── ModelNotAvailableError  weights not published yet, or offline and not cached
+        ├── ChecksumError           a file whose size or sha256 differs from its card
+        └── PublishError            a checkpoint or card that cannot be published
 """
 
 from __future__ import annotations
@@ -34,6 +39,11 @@ __all__ = [
     "UnknownRobotError",
     "RobotExistsError",
     "MotionFormatError",
+    "ModelZooError",
+    "UnknownModelError",
+    "ModelNotAvailableError",
+    "ChecksumError",
+    "PublishError",
 ]
 
 
@@ -125,3 +135,26 @@ class RobotExistsError(RegistryError):
 
 class MotionFormatError(MerError):
     """A motion file (CSV) that does not match its robot's layout."""
+
+
+class ModelZooError(MerError):
+    """Model registry (cards), Hub download and publishing problems."""
+
+
+class UnknownModelError(ModelZooError, KeyError):
+    """A model name that has no card; the message lists the known names."""
+
+    def __str__(self) -> str:  # KeyError would otherwise repr() the message
+        return self._format()
+
+
+class ModelNotAvailableError(ModelZooError):
+    """The weights are not published yet, or they are not cached and the network is off."""
+
+
+class ChecksumError(ModelZooError):
+    """A downloaded or cached file whose size or sha256 differs from what its card records."""
+
+
+class PublishError(ModelZooError):
+    """A checkpoint or card that cannot be published (missing files, unknown licence, name taken)."""

@@ -12,6 +12,7 @@ from mer_data.errors import MerError
 
 from . import __version__
 from . import demo as demo_cli
+from .zoo import cli as zoo_cli
 
 log = logging.getLogger("mer")
 
@@ -25,6 +26,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     robots_cli.add_parser(sub)
     demo_cli.add_parser(sub)
+    zoo_cli.add_parser(sub)
     return p
 
 
