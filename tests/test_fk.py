@@ -191,3 +191,23 @@ def test_fk_refuses_wrong_joint_count():
     st_ = skeleton_tensors(skel)
     with pytest.raises(ValueError, match="nodes"):
         forward_kinematics(torch.zeros(5), torch.zeros(3), torch.eye(3), st_.offsets, st_.axes, st_.parents)
+
+
+def test_per_sample_axes_match_individual_fk():
+    skel = load_robot("oli").skeleton
+    st_ = skeleton_tensors(skel, torch.float64)
+    gen = torch.Generator().manual_seed(7)
+    B, T = 3, 4
+    axes = torch.nn.functional.normalize(torch.randn(B, skel.num_nodes, 3, generator=gen, dtype=torch.float64), dim=-1)
+    axes = axes * torch.tensor(skel.revolute_mask, dtype=torch.float64)[:, None]
+    offsets = st_.offsets * torch.rand(B, skel.num_nodes, 1, generator=gen, dtype=torch.float64)
+    q = random_config(skel, B * T, gen).reshape(B, T, -1)
+    bp, bq = random_base(B * T, gen)
+    br = quat_to_matrix(bq).reshape(B, T, 3, 3)
+    for off in (offsets, st_.offsets):  # per-sample axes with per-sample and with shared offsets
+        pos, rot = forward_kinematics(q, bp.reshape(B, T, 3), br, off[:, None] if off.dim() == 3 else off, axes[:, None], st_.parents)
+        for b in range(B):
+            ob = off[b] if off.dim() == 3 else off
+            p1, r1 = forward_kinematics(q[b], bp.reshape(B, T, 3)[b], br[b], ob, axes[b], st_.parents)
+            torch.testing.assert_close(pos[b], p1, atol=1e-12, rtol=0)
+            torch.testing.assert_close(rot[b], r1, atol=1e-12, rtol=0)
