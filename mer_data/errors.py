@@ -15,6 +15,10 @@ line prints ``str(error)`` and exits non-zero; library callers can catch the cla
     │   ├── UnknownRobotError       lists the known robots
     │   └── RobotExistsError
     ├── MotionFormatError           motion files (CSV) that do not match the robot
+    ├── SplitError                  a train/eval split that does not fit the clips
+    ├── ShardError                  training shards
+    │   ├── ShardFormatError        not a shard, a damaged one, or an unsupported format version
+    │   └── ShardBuildError         a build that cannot start or finish (input, output folder)
     └── ModelZooError               model registry (cards), Hub downloads and publishing
         ├── UnknownModelError       lists the known models
         ├── ModelNotAvailableError  weights not published yet, or offline and not cached
@@ -39,6 +43,10 @@ __all__ = [
     "UnknownRobotError",
     "RobotExistsError",
     "MotionFormatError",
+    "SplitError",
+    "ShardError",
+    "ShardFormatError",
+    "ShardBuildError",
     "ModelZooError",
     "UnknownModelError",
     "ModelNotAvailableError",
@@ -135,6 +143,22 @@ class RobotExistsError(RegistryError):
 
 class MotionFormatError(MerError):
     """A motion file (CSV) that does not match its robot's layout."""
+
+
+class SplitError(MerError):
+    """A train/eval split that cannot be applied to the clips at hand."""
+
+
+class ShardError(MerError):
+    """Training shard problems."""
+
+
+class ShardFormatError(ShardError):
+    """A file that is not a mer shard, is damaged, or has an unsupported format version."""
+
+
+class ShardBuildError(ShardError):
+    """A shard build that cannot start or finish (input folder, output folder, failed clips)."""
 
 
 class ModelZooError(MerError):

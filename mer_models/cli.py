@@ -8,6 +8,7 @@ import sys
 from typing import Sequence
 
 from mer_data.cli import robots as robots_cli
+from mer_data.cli import shards as shards_cli
 from mer_data.errors import MerError
 
 from . import __version__
@@ -25,6 +26,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-vv for debug)")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     robots_cli.add_parser(sub)
+    shards_cli.add_parser(sub)
     demo_cli.add_parser(sub)
     zoo_cli.add_parser(sub)
     return p

@@ -20,6 +20,9 @@ What it speaks (model repositories only), as huggingface_hub 2.4 calls it:
 Every commit gets a 40-hex id (sha1 over its tree, parent, message and a counter), so pinned
 revisions behave as on the Hub. Writes need ``Authorization: Bearer <token>`` when ``token`` is set.
 
+``FakeHub`` (below) is a smaller stand-in for one *dataset* repository (info, tree, file
+downloads), used by the shard tooling's tests.
+
 Bounded: binds 127.0.0.1 on ephemeral ports, counts every request (``requests``), answers 503
 after ``max_requests``, refuses bodies over ``max_body`` bytes, and stops itself after
 ``lifetime_s`` seconds. Test hooks: :meth:`tamper` (serve other bytes under the same metadata, as a
@@ -36,11 +39,11 @@ import threading
 import time
 from dataclasses import dataclass, field
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from urllib.parse import parse_qs, unquote, urlsplit
+from urllib.parse import parse_qs, unquote, urlparse, urlsplit
 
 import yaml
 
-__all__ = ["HubServer"]
+__all__ = ["HubServer", "FakeHub"]
 
 GITATTRIBUTES = b"*.safetensors filter=lfs diff=lfs merge=lfs -text\n*.bin filter=lfs diff=lfs merge=lfs -text\n"
 LFS_SUFFIXES = (".safetensors", ".bin", ".pt", ".pth", ".ckpt", ".h5", ".npz", ".onnx", ".msgpack")
@@ -423,3 +426,79 @@ class HubServer:
             oid = self._commit(repo, head, header.get("summary", ""), files, branch)
         return 200, {"commitUrl": f"{self.url}/{repo.repo_id}/commit/{oid}", "commitOid": oid, "success": True,
                      "commitMessage": header.get("summary", ""), "pullRequestUrl": None}, {}
+
+
+# --- A minimal dataset-repository stand-in (shard tooling tests) -------------------------------
+
+
+class FakeHub:
+    def __init__(self, repo_id: str, files: dict[str, bytes], commit: str = "c0ffee" * 6 + "abcd") -> None:
+        self.repo_id, self.files, self.commit = repo_id, files, commit
+        self.requests: list[str] = []
+        hub = self
+
+        class Handler(BaseHTTPRequestHandler):
+            def log_message(self, *args):  # quiet
+                pass
+
+            def _send(self, code: int, body: bytes = b"", headers: dict | None = None, head: bool = False):
+                self.send_response(code)
+                for k, v in (headers or {}).items():
+                    self.send_header(k, v)
+                self.send_header("Content-Length", str(len(body)))
+                self.end_headers()
+                if not head:
+                    self.wfile.write(body)
+
+            def _json(self, obj, code=200):
+                self._send(code, json.dumps(obj).encode(), {"Content-Type": "application/json"})
+
+            def _route(self, head: bool):
+                path = unquote(urlparse(self.path).path)
+                hub.requests.append(f"{self.command} {path}")
+                api = f"/api/datasets/{hub.repo_id}"
+                resolve = f"/datasets/{hub.repo_id}/resolve/"
+                if path.startswith(f"{api}/revision/"):
+                    rev = path[len(f"{api}/revision/") :]
+                    if rev not in ("main", hub.commit):
+                        return self._send(404, b'{"error":"Revision Not Found"}', {"X-Error-Code": "RevisionNotFound"})
+                    return self._json({"id": hub.repo_id, "sha": hub.commit, "private": False,
+                                       "siblings": [{"rfilename": p} for p in sorted(hub.files)]})  # fmt: skip
+                if path.startswith(f"{api}/tree/"):
+                    entries, dirs = [], set()
+                    for p, data in sorted(hub.files.items()):
+                        parts = p.split("/")
+                        for i in range(1, len(parts)):
+                            dirs.add("/".join(parts[:i]))
+                        entries.append({"type": "file", "path": p, "size": len(data), "oid": hashlib.sha1(data).hexdigest()})
+                    entries += [{"type": "directory", "path": d, "oid": "0" * 40, "size": 0} for d in sorted(dirs)]
+                    return self._json(entries)
+                if path.startswith(resolve):
+                    rev, _, name = path[len(resolve) :].partition("/")
+                    if name not in hub.files or rev not in ("main", hub.commit):
+                        return self._send(404, b'{"error":"Entry not found"}', {"X-Error-Code": "EntryNotFound"}, head)
+                    data = hub.files[name]
+                    etag = '"' + hashlib.sha1(data).hexdigest() + '"'
+                    return self._send(200, data, {"ETag": etag, "X-Repo-Commit": hub.commit,
+                                                  "Content-Type": "application/octet-stream"}, head)  # fmt: skip
+                if path.startswith("/api/datasets/"):
+                    return self._send(404, b'{"error":"Repository not found"}', {"X-Error-Code": "RepoNotFound"}, head)
+                return self._send(404, b"not found", head=head)
+
+            def do_GET(self):
+                self._route(head=False)
+
+            def do_HEAD(self):
+                self._route(head=True)
+
+        self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.url = f"http://127.0.0.1:{self.server.server_address[1]}"
+        self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
+
+    def __enter__(self) -> "FakeHub":
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.server.shutdown()
+        self.server.server_close()

@@ -1,0 +1,228 @@
+"""LAFAN1 robot motion files: reading and writing ``.csv`` / ``.csv.gz`` in a robot's column layout.
+
+Layout (no header, comma separated, one frame per row)::
+
+    root x, y, z [m, world, z up], root quaternion x, y, z, w (scalar LAST), joint angles [rad]
+
+with the joint angles in the order of the robot card's ``lafan1_columns`` (g1: 29, h1: 19, h1_2: 27
+joints). Any registered robot whose card names such a column order is read the same way. Inside mer
+quaternions are scalar-first (w, x, y, z): the conversion happens here, at the edge.
+"""
+
+from __future__ import annotations
+
+import gzip
+import zlib
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from .csv_numeric import parse_numeric_csv
+from .errors import MotionFormatError
+from .registry import Robot, load_robot
+from .skeleton import Skeleton
+
+__all__ = [
+    "Motion",
+    "QUAT_TOLERANCE",
+    "ROOT_COLUMNS",
+    "lafan1_columns",
+    "read_motion_bytes",
+    "decompress_motion",
+    "parse_lafan1",
+    "read_lafan1_csv",
+    "write_lafan1_csv",
+    "motion_suffixes",
+]
+
+#: A root quaternion whose norm differs from 1 by at most this is renormalized; beyond, refused.
+#: (Six printed decimals put the norm within ~2e-6 of 1; the real G1/H1 data stays within 9e-7.)
+QUAT_TOLERANCE = 1e-3
+ROOT_COLUMNS = ("root_pos_x", "root_pos_y", "root_pos_z", "root_quat_x", "root_quat_y", "root_quat_z", "root_quat_w")
+
+
+def motion_suffixes() -> tuple[str, ...]:
+    """File name endings read as motions."""
+    return (".csv", ".csv.gz")
+
+
+@dataclass(frozen=True, eq=False)
+class Motion:
+    """One robot motion sampled at ``fps``.
+
+    Attributes:
+        robot: registered robot name.
+        fps: frame rate [Hz].
+        base_pos: (F, 3) float64 base position in the world [m].
+        base_quat: (F, 4) float64 unit base orientation, **wxyz**, world <- base.
+        joints: (F, D) float64 joint angles [rad], in the order of ``columns``.
+        columns: (D,) URDF joint names.
+    """
+
+    robot: str
+    fps: float
+    base_pos: np.ndarray
+    base_quat: np.ndarray
+    joints: np.ndarray
+    columns: tuple[str, ...]
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.base_pos.shape[0])
+
+    @property
+    def duration(self) -> float:
+        """Seconds from the first to the last frame."""
+        return (self.num_frames - 1) / self.fps
+
+    def node_angles(self, skel: Skeleton) -> np.ndarray:
+        """(F, J) float64 angle per skeleton node (0 at the base, sites and unlisted nodes)."""
+        idx = _column_nodes(skel, self.columns)
+        q = np.zeros((self.num_frames, skel.num_nodes))
+        q[:, idx] = self.joints
+        return q
+
+    def with_arrays(self, **kw) -> "Motion":
+        return replace(self, **kw)
+
+
+def _column_nodes(skel: Skeleton, columns: tuple[str, ...]) -> np.ndarray:
+    name_to_node = {n: j for j, n in enumerate(skel.node_names) if skel.node_kinds[j] == "revolute"}
+    missing = [c for c in columns if c not in name_to_node]
+    if missing:
+        raise MotionFormatError(
+            f"{skel.name}: motion columns {missing} are not joints of the skeleton",
+            element="lafan1_columns",
+            fix="lafan1_columns in the robot card must name the robot's actuated URDF joints",
+        )
+    return np.array([name_to_node[c] for c in columns], dtype=np.int64)
+
+
+def lafan1_columns(robot: str | Robot) -> tuple[str, ...]:
+    """The joint column order of a robot's LAFAN1 layout (its card's ``lafan1_columns``).
+
+    Raises:
+        UnknownRobotError: the robot is not registered.
+        MotionFormatError: the card names no layout, or the layout does not match the skeleton.
+    """
+    r = load_robot(robot) if isinstance(robot, str) else robot
+    cols = r.card.lafan1_columns
+    if not cols:
+        raise MotionFormatError(
+            f"robot {r.name!r} has no LAFAN1 column layout",
+            path=r.card.path,
+            element="lafan1_columns",
+            fix="add `lafan1_columns: [joint, ...]` (the CSV's joint order) to the robot card",
+        )
+    joints = set(r.skeleton.joint_names)
+    missing, extra = sorted(joints - set(cols)), [c for c in cols if c not in joints]
+    if missing or extra or len(set(cols)) != len(cols):
+        raise MotionFormatError(
+            f"lafan1_columns of {r.name!r} must list every actuated joint once"
+            + (f"; missing {missing}" if missing else "")
+            + (f"; not actuated joints: {extra}" if extra else ""),
+            path=r.card.path,
+            element="lafan1_columns",
+            fix="list each actuated URDF joint exactly once, in the CSV's order",
+        )
+    return tuple(cols)
+
+
+def read_motion_bytes(path: str | Path) -> bytes:
+    """The bytes of a ``.csv`` or ``.csv.gz`` file (decompressed)."""
+    p = Path(path)
+    try:
+        raw = p.read_bytes()
+    except FileNotFoundError:
+        raise MotionFormatError("no such file", path=p) from None
+    return decompress_motion(raw, p)
+
+
+def decompress_motion(raw: bytes, path: str | Path) -> bytes:
+    """``raw`` file bytes -> CSV bytes (gunzipped when ``path`` ends in ``.gz``)."""
+    if not str(path).endswith(".gz"):
+        return raw
+    try:
+        return gzip.decompress(raw)
+    except (OSError, EOFError, zlib.error) as exc:
+        raise MotionFormatError(
+            f"not a valid gzip file ({exc})", path=path, fix="re-download it, or decompress it yourself to check"
+        ) from None
+
+
+def parse_lafan1(
+    data: bytes,
+    robot: str | Robot,
+    *,
+    path: str | Path = "<bytes>",
+    fps: float = 30.0,
+    quat_tolerance: float = QUAT_TOLERANCE,
+) -> Motion:
+    """Parse LAFAN1 CSV bytes of ``robot`` into a :class:`Motion` (quaternion converted to wxyz)."""
+    r = load_robot(robot) if isinstance(robot, str) else robot
+    cols = lafan1_columns(r)
+    ncols = len(ROOT_COLUMNS) + len(cols)
+    what = f"{r.name}: root xyz, root quaternion xyzw, {len(cols)} joint angles"
+    a = parse_numeric_csv(data, ncols, path=str(path), what=what)
+    if not fps > 0:
+        raise MotionFormatError(f"frame rate must be positive, got {fps}", path=path)
+    xyzw = a[:, 3:7]
+    norm = np.sqrt(np.einsum("ij,ij->i", xyzw, xyzw))
+    bad = np.flatnonzero(~(np.abs(norm - 1.0) <= quat_tolerance))
+    if len(bad):
+        i = int(bad[0])
+        raise MotionFormatError(
+            f"root quaternion (columns 4-7) has norm {norm[i]:.6g}, not 1 within {quat_tolerance:g} "
+            f"({len(bad)} frame(s) like this)",
+            path=path,
+            line=i + 1,
+            element="root quaternion",
+            fix="columns 4-7 must be the unit quaternion x, y, z, w (scalar last); check the column order",
+        )
+    quat = np.empty((len(a), 4))
+    quat[:, 0] = xyzw[:, 3]
+    quat[:, 1:] = xyzw[:, :3]
+    quat /= norm[:, None]
+    return Motion(
+        robot=r.name,
+        fps=float(fps),
+        base_pos=np.ascontiguousarray(a[:, :3]),
+        base_quat=quat,
+        joints=np.ascontiguousarray(a[:, 7:]),
+        columns=cols,
+    )
+
+
+def read_lafan1_csv(
+    path: str | Path, robot: str | Robot, *, fps: float = 30.0, quat_tolerance: float = QUAT_TOLERANCE
+) -> Motion:
+    """Read a LAFAN1 ``.csv`` / ``.csv.gz`` motion of ``robot``.
+
+    Raises:
+        MotionFormatError: naming the file, the line and the cell (wrong column count, non-numeric
+            or non-finite cell, truncated last row, empty file, non-unit quaternion).
+        UnknownRobotError: ``robot`` is not registered.
+    """
+    r = load_robot(robot) if isinstance(robot, str) else robot  # unknown robot: fail before reading
+    return parse_lafan1(read_motion_bytes(path), r, path=path, fps=fps, quat_tolerance=quat_tolerance)
+
+
+def write_lafan1_csv(path: str | Path, motion: Motion, *, decimals: int = 6) -> Path:
+    """Write ``motion`` in its robot's LAFAN1 layout (gzip-compressed when the name ends in ``.gz``).
+
+    The joint columns are written in the card's order, whatever order ``motion.columns`` has.
+    """
+    cols = lafan1_columns(motion.robot)
+    pos = {c: i for i, c in enumerate(motion.columns)}
+    missing = [c for c in cols if c not in pos]
+    if missing:
+        raise MotionFormatError(f"the motion has no column for joints {missing}", path=path)
+    q = motion.base_quat
+    table = np.column_stack([motion.base_pos, q[:, 1:4], q[:, 0:1], motion.joints[:, [pos[c] for c in cols]]])
+    lines = "\n".join(",".join(f"{v:.{decimals}f}" for v in row) for row in table) + "\n"
+    data = lines.encode()
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    p.write_bytes(gzip.compress(data, mtime=0) if p.name.endswith(".gz") else data)
+    return p

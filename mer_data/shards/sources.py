@@ -1,0 +1,118 @@
+"""Where the motions come from: a local folder or a Hugging Face dataset (``hf://REPO_ID[@REV]``).
+
+The layout is the one of ``lvhaidong/LAFAN1_Retargeting_Dataset``: one folder per robot, one file
+per clip (``g1/dance1_subject1.csv``); ``.csv.gz`` files are read as well.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+from pathlib import Path
+from typing import Sequence
+
+from ..errors import ShardBuildError
+from ..motion_io import motion_suffixes
+
+log = logging.getLogger(__name__)
+
+__all__ = ["HF_PREFIX", "LAFAN1_REPO", "resolve_input", "discover_clips", "clip_name", "sha256_bytes", "stable_words"]
+
+HF_PREFIX = "hf://"
+#: The public LAFAN1 robot dataset (Unitree's retargeting; folders g1/, h1/, h1_2/).
+LAFAN1_REPO = "lvhaidong/LAFAN1_Retargeting_Dataset"
+
+
+def clip_name(path: Path) -> str | None:
+    """Clip name of a motion file (its name without ``.csv``/``.csv.gz``), None for other files."""
+    for suffix in sorted(motion_suffixes(), key=len, reverse=True):
+        if path.name.endswith(suffix) and len(path.name) > len(suffix):
+            return path.name[: -len(suffix)]
+    return None
+
+
+def resolve_input(spec: str, robots: Sequence[str]) -> Path:
+    """A local folder for ``spec``: the folder itself, or the snapshot of ``hf://REPO_ID[@REVISION]``.
+
+    Only the robots' ``*.csv``/``*.csv.gz`` files are downloaded. ``HF_HUB_OFFLINE=1`` is honoured
+    (the cached snapshot is used, and it is an error if there is none).
+    """
+    if not spec.startswith(HF_PREFIX):
+        root = Path(spec).expanduser()
+        if not root.is_dir():
+            raise ShardBuildError(
+                "the input folder does not exist" if not root.exists() else "the input is not a folder",
+                path=root,
+                fix=f"pass a folder holding one sub-folder per robot ({'/, '.join(robots)}/), or hf://{LAFAN1_REPO}",
+            )
+        return root
+    repo, _, revision = spec[len(HF_PREFIX) :].partition("@")
+    if repo.count("/") != 1 or not all(repo.split("/")):
+        raise ShardBuildError(f"cannot read the Hub dataset id {repo!r}", fix=f"use hf://OWNER/NAME, e.g. hf://{LAFAN1_REPO}")
+    from huggingface_hub import snapshot_download
+    from huggingface_hub.errors import (
+        HfHubHTTPError,
+        LocalEntryNotFoundError,
+        RepositoryNotFoundError,
+        RevisionNotFoundError,
+    )
+
+    patterns = [f"{r}/*{s}" for r in robots for s in motion_suffixes()]
+    try:
+        path = snapshot_download(repo_id=repo, repo_type="dataset", revision=revision or None, allow_patterns=patterns)
+    except RevisionNotFoundError:
+        raise ShardBuildError(f"the dataset {repo!r} has no revision {revision!r}", fix="check the @REVISION part") from None
+    except RepositoryNotFoundError:
+        raise ShardBuildError(
+            f"no dataset {repo!r} on the Hub (or it is private and no token was given)",
+            fix="check the id, or log in with `hf auth login`",
+        ) from None
+    except LocalEntryNotFoundError as exc:
+        raise ShardBuildError(
+            f"the dataset {repo!r} is not in the local cache and cannot be downloaded ({str(exc).splitlines()[0]})",
+            fix="connect to the network (and unset HF_HUB_OFFLINE) once to download it, or pass a local folder",
+        ) from None
+    except HfHubHTTPError as exc:
+        raise ShardBuildError(f"downloading {repo!r} failed: {exc}") from None
+    log.info("using %s from %s", spec, path)
+    return Path(path)
+
+
+def discover_clips(root: Path, robots: Sequence[str]) -> dict[str, dict[str, Path]]:
+    """robot -> clip name -> file, for the given robots (sorted by clip name)."""
+    out: dict[str, dict[str, Path]] = {}
+    for robot in robots:
+        folder = root / robot
+        if not folder.is_dir():
+            present = sorted(p.name for p in root.iterdir() if p.is_dir()) if root.is_dir() else []
+            raise ShardBuildError(
+                f"no folder for robot {robot!r} in the input (it has: {', '.join(present) or 'nothing'})",
+                path=root,
+                fix=f"put the robot's clips in {folder}/ (one .csv or .csv.gz per clip)",
+            )
+        clips: dict[str, Path] = {}
+        for p in sorted(folder.iterdir()):
+            name = clip_name(p)
+            if name is None or not p.is_file():
+                continue
+            if name in clips:
+                raise ShardBuildError(
+                    f"clip {name!r} is there twice ({clips[name].name} and {p.name})",
+                    path=folder,
+                    fix="keep one file per clip",
+                )
+            clips[name] = p
+        if not clips:
+            raise ShardBuildError(f"no .csv or .csv.gz files for robot {robot!r}", path=folder)
+        out[robot] = dict(sorted(clips.items()))
+    return out
+
+
+def sha256_bytes(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def stable_words(text: str, n: int = 4) -> list[int]:
+    """``n`` 32-bit words from sha256(text): a platform-independent seed component for a name."""
+    h = hashlib.sha256(text.encode()).digest()
+    return [int.from_bytes(h[4 * i : 4 * i + 4], "little") for i in range(n)]
