@@ -114,14 +114,19 @@ def _folder_of(name: str) -> tuple[Path, bool]:
     )
 
 
-_cache: dict[tuple[str, float, float], Robot] = {}
+_cache: dict[tuple, Robot] = {}
 _lock = threading.Lock()
 
 
 def load_robot(name: str) -> Robot:
-    """Look a robot up by name (built-in or registered); cached per file modification time."""
+    """Look a robot up by name (built-in or registered); cached per file modification times."""
     folder, builtin = _folder_of(name)
     card_path = folder / CARD_FILE
+    key = (str(card_path), *(p.stat().st_mtime_ns for p in (card_path, *folder.glob("*.urdf"))))
+    with _lock:
+        hit = _cache.get(key)
+    if hit is not None:
+        return hit
     card = load_card(card_path)
     if card.name != name:
         raise RobotCardError(
@@ -131,11 +136,6 @@ def load_robot(name: str) -> Robot:
             fix=f"set `name: {name}`",
         )
     urdf_path = folder / card.urdf
-    key = (str(card_path), card_path.stat().st_mtime, urdf_path.stat().st_mtime if urdf_path.exists() else 0.0)
-    with _lock:
-        hit = _cache.get(key)
-    if hit is not None:
-        return hit
     robot = Robot(name, card, urdf_path, build_skeleton(load_urdf(urdf_path), card), builtin)
     with _lock:
         _cache[key] = robot

@@ -69,7 +69,8 @@ def test_real_windows_match_fk_and_g1_h1_pair_up(real, lafan1_dir):
 
 @pytest.mark.slow
 def test_g1_travels_about_0_74_of_h1(lafan1_dir):
-    """Design notes: root paths are scaled per robot, G1 ~0.74x H1; the leg-length fit alpha_root says 0.80."""
+    """Design notes: root paths are scaled per robot, G1 ~0.74x H1. mer's alpha_root (feet kept on the
+    ground, mer_data.scaling) is an independent estimate of the same ratio from the two URDFs alone."""
     num = den = 0.0
     for clip in ("walk1_subject1", "run1_subject2"):
         g = read_lafan1_csv(lafan1_dir / "g1" / f"{clip}.csv", "g1").base_pos[:, :2]
@@ -77,8 +78,9 @@ def test_g1_travels_about_0_74_of_h1(lafan1_dir):
         g, h = g - g[0], h - h[0]
         num += float((g * h).sum())
         den += float((h * h).sum())
-    assert num / den == pytest.approx(0.74, abs=0.01)
-    assert body_part_scales(get_skeleton("h1"), get_skeleton("g1"))["root"] == pytest.approx(0.798, abs=0.005)
+    ratio = num / den
+    assert ratio == pytest.approx(0.74, abs=0.01)
+    assert body_part_scales(get_skeleton("h1"), get_skeleton("g1"))["root"] == pytest.approx(ratio, abs=0.015)
 
 
 def _expected(lafan1_dir):
