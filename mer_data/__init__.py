@@ -1,23 +1,40 @@
 """mer_data: robot skeleton graphs from URDF, the robot registry, forward kinematics, joint maps,
-and the LAFAN1 training-shard tooling. Depends on no part of :mod:`mer_models`."""
+and the LAFAN1 training-shard tooling. Depends on no part of :mod:`mer_models`.
 
-from .errors import MerError
-from .fk import forward_kinematics, skeleton_tensors
-from .jointmap import joint_map, keypoint_pairs
-from .registry import BUILTIN_ROBOTS, get_skeleton, list_robots, load_robot
-from .skeleton import KEYPOINTS, Skeleton
+The names below are imported lazily (PEP 562), so ``import mer_data.errors`` (or the model zoo's
+registry) does not pay for importing torch; ``from mer_data import Skeleton`` works as before.
+"""
 
-__all__ = [
-    "MerError",
-    "Skeleton",
-    "KEYPOINTS",
-    "BUILTIN_ROBOTS",
-    "get_skeleton",
-    "load_robot",
-    "list_robots",
-    "forward_kinematics",
-    "skeleton_tensors",
-    "joint_map",
-    "keypoint_pairs",
-]
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+_EXPORTS = {
+    "MerError": ".errors",
+    "Skeleton": ".skeleton",
+    "KEYPOINTS": ".skeleton",
+    "BUILTIN_ROBOTS": ".registry",
+    "get_skeleton": ".registry",
+    "load_robot": ".registry",
+    "list_robots": ".registry",
+    "forward_kinematics": ".fk",
+    "skeleton_tensors": ".fk",
+    "joint_map": ".jointmap",
+    "keypoint_pairs": ".jointmap",
+}
+
+__all__ = list(_EXPORTS)
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str) -> Any:
+    if name in _EXPORTS:
+        value = getattr(importlib.import_module(_EXPORTS[name], __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'mer_data' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_EXPORTS])

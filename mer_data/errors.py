@@ -20,8 +20,13 @@ line prints ``str(error)`` and exits non-zero; library callers can catch the cla
     │   ├── ShardFormatError        not a shard, a damaged one, or an unsupported format version
     │   └── ShardBuildError         a build that cannot start or finish (input, output folder)
     ├── ConfigError                 a configuration (or checkpoint config.json) the code does not match
-    └── CheckpointError             missing, corrupt or mismatched model checkpoints
-        └── UnseenRobotError        a checkpoint asked to retarget to a robot it never saw
+    ├── CheckpointError             missing, corrupt or mismatched model checkpoints
+    │   └── UnseenRobotError        a checkpoint asked to retarget to a robot it never saw
+    └── ModelZooError               model registry (cards), Hub downloads and publishing
+        ├── UnknownModelError       lists the known models
+        ├── ModelNotAvailableError  weights not published yet, or offline and not cached
+        ├── ChecksumError           a file whose size or sha256 differs from its card
+        └── PublishError            a checkpoint or card that cannot be published
 """
 
 from __future__ import annotations
@@ -48,6 +53,11 @@ __all__ = [
     "ShardError",
     "ShardFormatError",
     "ShardBuildError",
+    "ModelZooError",
+    "UnknownModelError",
+    "ModelNotAvailableError",
+    "ChecksumError",
+    "PublishError",
 ]
 
 
@@ -167,3 +177,26 @@ class ShardFormatError(ShardError):
 
 class ShardBuildError(ShardError):
     """A shard build that cannot start or finish (input folder, output folder, failed clips)."""
+
+
+class ModelZooError(MerError):
+    """Model registry (cards), Hub download and publishing problems."""
+
+
+class UnknownModelError(ModelZooError, KeyError):
+    """A model name that has no card; the message lists the known names."""
+
+    def __str__(self) -> str:  # KeyError would otherwise repr() the message
+        return self._format()
+
+
+class ModelNotAvailableError(ModelZooError):
+    """The weights are not published yet, or they are not cached and the network is off."""
+
+
+class ChecksumError(ModelZooError):
+    """A downloaded or cached file whose size or sha256 differs from what its card records."""
+
+
+class PublishError(ModelZooError):
+    """A checkpoint or card that cannot be published (missing files, unknown licence, name taken)."""

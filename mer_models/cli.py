@@ -16,6 +16,7 @@ from . import demo as demo_cli
 from .commands import evaluate as evaluate_cli
 from .commands import retarget as retarget_cli
 from .commands import train as train_cli
+from .zoo import cli as zoo_cli
 
 log = logging.getLogger("mer")
 
@@ -33,6 +34,7 @@ def build_parser() -> argparse.ArgumentParser:
     train_cli.add_parser(sub)
     retarget_cli.add_parser(sub)
     evaluate_cli.add_parser(sub)
+    zoo_cli.add_parser(sub)
     return p
 
 
