@@ -19,13 +19,13 @@ parent is always one level up), so the cost is ``depth`` batched steps, not ``J`
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 from typing import Sequence
 
 import numpy as np
 import torch
 
 from .rotations import quat_to_matrix
+from .fk_kernel import axis_matrices, fk_core, rodrigues
 from .skeleton import Skeleton
 
 __all__ = [
@@ -94,57 +94,13 @@ def apply_mimic(q: torch.Tensor, source: torch.Tensor, multiplier: torch.Tensor,
     return multiplier * driven + offset
 
 
-def _axis_matrices(axes: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """``[a]x`` and ``[a]x^2 = a a^T - |a|^2 I`` for (..., 3) axes → two (..., 3, 3)."""
-    x, y, z = axes.unbind(-1)
-    zero = torch.zeros_like(x)
-    k = torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], -1).reshape(x.shape + (3, 3))
-    eye = torch.eye(3, dtype=axes.dtype, device=axes.device)
-    kk = axes[..., :, None] * axes[..., None, :] - (axes * axes).sum(-1)[..., None, None] * eye
-    return k, kk
-
-
 def joint_rotations(axes: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
     """Rodrigues rotations ``Rot(axes_j, q_j)``: (..., J, 3), (..., J) → (..., J, 3, 3).
 
     ``I + sin(q) [a]x + (1 - cos q) [a]x^2``: the identity wherever the axis is zero.
     """
-    k, kk = _axis_matrices(axes)
-    return _rodrigues(k, kk, q)
-
-
-def _rodrigues(k: torch.Tensor, kk: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
-    eye = torch.eye(3, dtype=q.dtype, device=q.device)
-    out = torch.addcmul(eye, torch.sin(q)[..., None, None], k)
-    return torch.addcmul(out, (1 - torch.cos(q))[..., None, None], kk)
-
-
-@dataclass(frozen=True)
-class _Plan:
-    """Evaluation order of a tree: nodes grouped by depth, levels contiguous."""
-
-    order: np.ndarray  # (J,) node indices in level order (level 0 = [0])
-    bounds: tuple[tuple[int, int], ...]  # per level d >= 1: [start, stop) into ``order``
-    parent_pos: tuple[np.ndarray | None, ...]  # per level: parent's position in level d-1 (None: all the first)
-
-
-@lru_cache(maxsize=256)
-def _plan(parents: tuple[int, ...]) -> _Plan:
-    J = len(parents)
-    depth = np.zeros(J, np.int64)
-    for j in range(1, J):
-        depth[j] = depth[parents[j]] + 1
-    levels = [np.flatnonzero(depth == d) for d in range(int(depth.max()) + 1)]
-    pos_in_level = np.zeros(J, np.int64)
-    for nodes in levels:
-        pos_in_level[nodes] = np.arange(len(nodes))
-    bounds, parent_pos, start = [], [], 1
-    for nodes in levels[1:]:
-        pp = pos_in_level[np.asarray(parents)[nodes]]
-        parent_pos.append(None if np.all(pp == 0) and len(levels[len(bounds)]) == 1 else pp)
-        bounds.append((start, start + len(nodes)))
-        start += len(nodes)
-    return _Plan(np.concatenate(levels), tuple(bounds), tuple(parent_pos))
+    k, kk = axis_matrices(axes)
+    return rodrigues(k, kk, q)
 
 
 def forward_kinematics(
@@ -184,57 +140,7 @@ def forward_kinematics(
     J = len(par)
     if q.shape[-1] != J:
         raise ValueError(f"q has {q.shape[-1]} joints, the skeleton has {J} nodes")
-    batch = torch.broadcast_shapes(
-        q.shape[:-1], base_pos.shape[:-1], base_rot.shape[:-2], offsets.shape[:-2], axes.shape[:-2]
-    )
-    n = int(np.prod(batch)) if len(batch) else 1
-    plan = _plan(par)
-    order = torch.as_tensor(plan.order, device=q.device)
-    # node-major layout in level order (J, n, ...): each level is a contiguous slice
-    q_ = q.expand(batch + (J,)).reshape(n, J).t().index_select(0, order)
-    sin, one_minus_cos = torch.sin(q_)[..., None, None], (1 - torch.cos(q_))[..., None, None]
-    ax = _node_major(axes, batch, n, J).index_select(0, order)  # (J, n or 1, 3)
-    off = _node_major(offsets, batch, n, J).index_select(0, order)  # (J, n or 1, 3)
-    shared_axes, shared_off = ax.shape[1] == 1, off.shape[1] == 1
-    k, kk = _axis_matrices(ax[:, 0] if shared_axes else ax)  # (J, 3, 3) or (J, n, 3, 3)
-    # shared geometry: one GEMM per level, rows of the parents' rotations times [K | K^2 | offset]
-    rhs = torch.cat(([k, kk] if shared_axes else []) + ([off[:, 0, :, None]] if shared_off else []), -1) if (
-        shared_axes or shared_off
-    ) else None
-
-    rot_out = q.new_empty((n, J, 3, 3))
-    pos_out = q.new_empty((n, J, 3))
-    rot_prev = base_rot.expand(batch + (3, 3)).reshape(1, n, 3, 3)
-    pos_prev = base_pos.expand(batch + (3,)).reshape(1, n, 3)
-    rot_out.index_copy_(1, order[:1], rot_prev.transpose(0, 1))
-    pos_out.index_copy_(1, order[:1], pos_prev.transpose(0, 1))
-    for (a, b), pp in zip(plan.bounds, plan.parent_pos):
-        L = b - a
-        if pp is None:  # every node of the level hangs off the single node above
-            r_par, p_par = rot_prev.expand(L, -1, -1, -1), pos_prev
-        else:
-            pidx = torch.as_tensor(pp, device=q.device)
-            r_par, p_par = rot_prev.index_select(0, pidx), pos_prev.index_select(0, pidx)
-        prod = None if rhs is None else (r_par.reshape(L, n * 3, 3) @ rhs[a:b]).reshape(L, n, 3, -1)
-        if shared_axes:
-            rot_prev = torch.addcmul(torch.addcmul(r_par, sin[a:b], prod[..., 0:3]), one_minus_cos[a:b], prod[..., 3:6])
-        else:
-            rot_prev = r_par @ _rodrigues(k[a:b], kk[a:b], q_[a:b])
-        if shared_off:
-            pos_prev = p_par + prod[..., -1]
-        else:
-            pos_prev = p_par + (r_par * off[a:b, :, None, :]).sum(-1)
-        rot_out.index_copy_(1, order[a:b], rot_prev.transpose(0, 1))
-        pos_out.index_copy_(1, order[a:b], pos_prev.transpose(0, 1))
-    return pos_out.reshape(batch + (J, 3)), rot_out.reshape(batch + (J, 3, 3))
-
-
-def _node_major(t: torch.Tensor, batch: torch.Size, n: int, J: int) -> torch.Tensor:
-    """(..., J, 3) broadcastable to ``batch`` → (J, n, 3), or (J, 1, 3) when shared by the batch."""
-    lead = t.shape[:-2]
-    if int(np.prod(lead)) == 1 if len(lead) else True:
-        return t.reshape(J, 1, 3)
-    return t.expand(batch + (J, 3)).reshape(n, J, 3).transpose(0, 1)
+    return fk_core(q, base_pos, base_rot, offsets, axes, par)
 
 
 def _forward_kinematics_mixed(q, base_pos, base_rot, offsets, axes, parents: torch.Tensor):
