@@ -15,11 +15,12 @@ import os
 import re
 import shutil
 import sys
-import tempfile
 import threading
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
+from .atomic import atomic_dir
 from .errors import RegistryError, RobotCardError, RobotExistsError, UnknownRobotError
 from .robot_card import RobotCard, dump_card, load_card
 from .skeleton import Skeleton
@@ -193,31 +194,19 @@ def write_robot(
         )
     root.mkdir(parents=True, exist_ok=True)
     _sweep_stale()
-    tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{name}-", dir=root))
-    try:
-        urdf_name = f"{name}.urdf"
-        shutil.copyfile(urdf_source, tmp / urdf_name)
-        from dataclasses import replace
+    urdf_name = f"{name}.urdf"
+    parsed = {}
 
-        card = replace(card, urdf=urdf_name, path=str(tmp / CARD_FILE))
-        (tmp / CARD_FILE).write_text(dump_card(card))
-        # validate exactly what was written
-        written = load_card(tmp / CARD_FILE)
-        urdf = load_urdf(tmp / urdf_name)
-        build_skeleton(urdf, written)
-        for f in tmp.iterdir():  # make the content durable before it becomes visible
-            with open(f, "rb") as fh:
-                os.fsync(fh.fileno())
-        old = None
-        if final.exists():
-            old = root / f".old-{name}-{os.getpid()}"
-            os.rename(final, old)
-        os.rename(tmp, final)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+    def write(tmp: Path) -> None:
+        shutil.copyfile(urdf_source, tmp / urdf_name)
+        written_card = dataclasses.replace(card, urdf=urdf_name, path=str(tmp / CARD_FILE))
+        (tmp / CARD_FILE).write_text(dump_card(written_card))
+        # validate exactly what was written, before it becomes visible
+        parsed["urdf"] = load_urdf(tmp / urdf_name)
+        build_skeleton(parsed["urdf"], load_card(tmp / CARD_FILE))
+
+    atomic_dir(final, write)
+    urdf = parsed["urdf"]
     return load_robot(name), urdf
 
 

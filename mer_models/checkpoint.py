@@ -22,8 +22,6 @@ import datetime as _dt
 import json
 import logging
 import os
-import shutil
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -32,6 +30,7 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
+from mer_data.atomic import atomic_dir
 from mer_data.errors import CheckpointError, ConfigError, UnseenRobotError
 
 from . import __version__
@@ -75,24 +74,6 @@ class Checkpoint:
     @property
     def references(self) -> list[str]:
         return sorted(self.robots.get("references", {}))
-
-
-def _atomic_dir(final: Path, write) -> None:
-    final = Path(final)
-    final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{final.name}-", dir=final.parent))
-    try:
-        write(tmp)
-        old = None
-        if final.exists():
-            old = final.parent / f".old-{final.name}-{os.getpid()}"
-            os.rename(final, old)
-        os.rename(tmp, final)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
 
 
 def _optimizer_tensors(opt: torch.optim.Optimizer) -> tuple[dict[str, torch.Tensor], dict]:
@@ -141,7 +122,7 @@ def save_checkpoint(
             save_file(tensors, str(tmp / OPTIMIZER))
             (tmp / STATE).write_text(json.dumps({**groups, **dict(trainer_state or {})}, indent=2, sort_keys=True) + "\n")
 
-    _atomic_dir(Path(path), write)
+    atomic_dir(Path(path), write)
     return Path(path)
 
 

@@ -13,9 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
+from mer_data.atomic import atomic_write
 from mer_data.skeleton import Skeleton
 
-from .writers import TargetMotion, atomic_write
+from .writers import TargetMotion
 
 __all__ = ["plot_motion"]
 

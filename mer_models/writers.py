@@ -25,21 +25,20 @@ from __future__ import annotations
 
 import io
 import json
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from mer_data.atomic import atomic_write
 from mer_data.features import finite_difference
 from mer_data.fk import fk_skeleton, link_rotations, skeleton_tensors
 from mer_data.registry import load_robot
 from mer_data.rotations import matrix_to_axis_angle, matrix_to_quat
 from mer_data.skeleton import Skeleton
 
-__all__ = ["TargetMotion", "csv_columns", "write_csv", "write_npz", "write_mcap", "atomic_write"]
+__all__ = ["TargetMotion", "csv_columns", "write_csv", "write_npz", "write_mcap"]
 
 
 @dataclass(frozen=True)
@@ -74,21 +73,6 @@ class TargetMotion:
             st, torch.from_numpy(self.q), torch.from_numpy(self.base_pos), base_rot=torch.from_numpy(self.base_rot)
         )
         return pos.numpy(), rot.numpy()
-
-
-def atomic_write(path: str | Path, data: bytes) -> Path:
-    """Write bytes to ``path`` via a temporary file in the same folder and a rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
 
 
 def csv_columns(skel: Skeleton) -> tuple[str, ...]:

@@ -37,7 +37,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def cmd_evaluate(args) -> int:
     from mer_models.checkpoint import resolve_model
     from mer_models.evaluate import EvalOptions, evaluate, format_table
-    from mer_models.writers import atomic_write
+    from mer_data.atomic import atomic_write
 
     ckpt = resolve_model(args.model, args.device) if args.model else None
     methods = tuple(args.methods or (("model", "optimize") if ckpt is not None else ("optimize",)))

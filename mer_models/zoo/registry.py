@@ -17,11 +17,10 @@ and are described by a built-in card whose status is ``bundled``.
 from __future__ import annotations
 
 import logging
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from mer_data.atomic import atomic_write
 from mer_data.errors import ModelZooError, UnknownModelError
 from mer_data.registry import mer_home
 
@@ -145,26 +144,14 @@ class Registry:
         return self.bundled / validate_model_name(name)
 
 
-def _atomic_write(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def write_card(card: ModelCard, folder: Path) -> Path:
     """Render ``card`` into ``folder/<name>.md`` atomically; writing into the repository's source
     catalogue also refreshes the packaged copy. Returns the path written."""
     text = render_card(card)
     path = Path(folder) / f"{validate_model_name(card.name)}.md"
-    _atomic_write(path, text)
+    atomic_write(path, text)
     src = source_cards_dir()
     if src is not None and Path(folder).resolve() == src.resolve():
-        _atomic_write(packaged_cards_dir() / path.name, text)
+        atomic_write(packaged_cards_dir() / path.name, text)
     log.info("wrote the model card %s", path)
     return path
