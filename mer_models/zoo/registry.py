@@ -151,6 +151,7 @@ def _atomic_write(path: Path, text: str) -> None:
     try:
         with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
             f.write(text)
+        os.chmod(tmp, 0o644)  # mkstemp makes 0600; a card is for everyone to read (and ships in the wheel)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
