@@ -41,7 +41,7 @@ sys.path.insert(0, str(REPO))
 NAME = "mer-tiny-synthetic"
 TARGETS = ("g1", "h1", "h1_2", "atlas", "oli", "tron1", "talos", "valkyrie")
 SOURCE = "g1"
-STEPS = 900
+STEPS = 1300
 SEED = 0
 SYNTHETIC = 4096
 TRAIN_ARGS = [
