@@ -85,3 +85,15 @@ def test_retarget_by_name_and_by_default_offline(tmp_path, capsys, monkeypatch):
     assert f"using the bundled demo model {zoo.DEFAULT_MODEL!r}" in err
     a, b = np.loadtxt(tmp_path / "a.csv", delimiter=","), np.loadtxt(tmp_path / "b.csv", delimiter=",")
     assert a.shape == (45, 7 + get_skeleton("tron1").num_dof) and np.array_equal(a, b)  # same model, same seed
+
+
+def test_the_library_still_needs_a_model_for_diffusion(tmp_path):
+    """Only the command line falls back to the bundled model (and says so); the library never picks one."""
+    import pytest
+
+    from mer_data.errors import MerError
+    from mer_models.retarget import retarget_file
+
+    with pytest.raises(MerError, match="--method optimize"):
+        retarget_file(_csv(tmp_path / "w.csv", frames=10), "g1", "h1", out_csv=tmp_path / "o.csv")
+    assert not (tmp_path / "o.csv").exists()
