@@ -16,6 +16,17 @@ from pathlib import Path
 __all__ = ["atomic_write", "atomic_dir"]
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _chmod_like_open(path: str | Path, *, folder: bool) -> None:
+    """``mkstemp``/``mkdtemp`` create 0600/0700; give what ``open``/``mkdir`` would (0666/0777 & ~umask)."""
+    os.chmod(path, (0o777 if folder else 0o666) & ~_umask())
+
+
 def atomic_write(path: str | Path, data: bytes | str) -> Path:
     """Write ``data`` (bytes, or text as UTF-8 with ``\\n`` newlines) to ``path`` atomically."""
     path = Path(path)
@@ -27,6 +38,7 @@ def atomic_write(path: str | Path, data: bytes | str) -> Path:
             fh.write(payload)
             fh.flush()
             os.fsync(fh.fileno())
+        _chmod_like_open(tmp, folder=False)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -44,6 +56,7 @@ def atomic_dir(final: str | Path, write: Callable[[Path], None]) -> Path:
     tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{final.name}-", dir=final.parent))
     try:
         write(tmp)
+        _chmod_like_open(tmp, folder=True)
         for f in tmp.iterdir():
             if f.is_file():
                 with open(f, "rb") as fh:

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .atomic import atomic_write
 from .csv_numeric import parse_numeric_csv
 from .errors import MotionFormatError
 from .registry import Robot, load_robot
@@ -223,6 +224,4 @@ def write_lafan1_csv(path: str | Path, motion: Motion, *, decimals: int = 6) -> 
     lines = "\n".join(",".join(f"{v:.{decimals}f}" for v in row) for row in table) + "\n"
     data = lines.encode()
     p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    p.write_bytes(gzip.compress(data, mtime=0) if p.name.endswith(".gz") else data)
-    return p
+    return atomic_write(p, gzip.compress(data, mtime=0) if p.name.endswith(".gz") else data)

@@ -97,8 +97,12 @@ def save_checkpoint(
     optimizer: torch.optim.Optimizer | None = None,
     trainer_state: Mapping[str, Any] | None = None,
     rng_tensors: Mapping[str, torch.Tensor] | None = None,
+    extra_files: Mapping[str, str] | None = None,
 ) -> Path:
-    """Write a checkpoint folder atomically (see module docstring). Returns its path."""
+    """Write a checkpoint folder atomically (see module docstring). Returns its path.
+
+    ``extra_files`` maps file names to text written into the same folder (e.g. the training log),
+    so they appear together with the weights or not at all."""
     meta = {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
@@ -121,6 +125,10 @@ def save_checkpoint(
                 tensors[f"rng.{k}"] = v.detach().cpu().contiguous()
             save_file(tensors, str(tmp / OPTIMIZER))
             (tmp / STATE).write_text(json.dumps({**groups, **dict(trainer_state or {})}, indent=2, sort_keys=True) + "\n")
+        for fname, text in (extra_files or {}).items():
+            if Path(fname).name != fname or fname in (CONFIG, WEIGHTS, OPTIMIZER, STATE):
+                raise ValueError(f"extra checkpoint file {fname!r} must be a plain file name other than the checkpoint's own")
+            (tmp / fname).write_text(text, encoding="utf-8")
 
     atomic_dir(Path(path), write)
     return Path(path)

@@ -14,6 +14,7 @@ from mer_data.errors import MerError
 from . import __version__
 from . import demo as demo_cli
 from .commands import evaluate as evaluate_cli
+from .commands import finetune as finetune_cli
 from .commands import retarget as retarget_cli
 from .commands import train as train_cli
 from .zoo import cli as zoo_cli
@@ -32,6 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
     shards_cli.add_parser(sub)
     demo_cli.add_parser(sub)
     train_cli.add_parser(sub)
+    finetune_cli.add_parser(sub)
     retarget_cli.add_parser(sub)
     evaluate_cli.add_parser(sub)
     zoo_cli.add_parser(sub)

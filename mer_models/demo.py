@@ -4,9 +4,14 @@
 2. training shards from an embedded default -- a short synthetic walk generated in code for every
    built-in robot with a LAFAN1 layout (no LAFAN1 data ships with mer: its licence forbids it),
    written as LAFAN1 CSVs, built into HDF5 shards, inspected, loaded as a batch, and written
-   once more as an MCAP file to look at in Foxglove.
+   once more as an MCAP file to look at in Foxglove;
+3. a new robot registered from its URDF (a small humanoid generated in code,
+   :mod:`mer_data.example_robot`), as ``mer robots register`` does;
+4. the default model loaded by name from the zoo (bundled with the package: no network);
+5. the synthetic G1 walk retargeted to every built-in robot and to the new one (zero-shot: the
+   model never saw it), written as CSVs, one MCAP and one PNG, with the paper's metrics per robot.
 
-``docs/shards.md`` shows the same build on the real data.
+``docs/shards.md`` shows the same build on the real data; ``docs/zoo.md`` the models.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ import argparse
 import tempfile
 from pathlib import Path
 
+from mer_data.errors import MerError
 from mer_data.jointmap import keypoint_pairs
 from mer_data.motion_io import write_lafan1_csv
 from mer_data.registry import BUILTIN_ROBOTS, get_skeleton, list_robots
@@ -29,6 +35,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--source", default="g1", help="reference robot (default g1)")
     p.add_argument("--out", metavar="DIR", help="where to write the demo's files (default: a new temporary folder)")
     p.add_argument("--workers", type=int, default=1, help="worker processes for the shard build (default 1)")
+    p.add_argument("--model", default=None, help="zoo name, folder or ORG/NAME (default: the bundled mer-tiny-synthetic)")
+    p.add_argument("--show", default="h1", help="the robot whose result is also written as MCAP and PNG (default h1)")
+    p.add_argument("--steps", type=int, default=None, help="sampler steps (default: the model's)")
     p.set_defaults(func=cmd_demo)
 
 
@@ -57,6 +66,11 @@ def write_synthetic_input(folder: Path, robots: list[str], *, seconds: float = 8
 
 
 def cmd_demo(args) -> int:
+    from mer_data.example_robot import EXAMPLE_ROBOT
+
+    choices = [*BUILTIN_ROBOTS, EXAMPLE_ROBOT]
+    if args.show not in choices:
+        raise MerError(f"--show {args.show!r} is not one of the demo's robots", element=args.show, fix=f"pick one of {', '.join(choices)}")
     robots = show_registry(args.source)
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="mer-demo-"))
     sources = [r.name for r in robots if r.name in BUILTIN_ROBOTS and r.card.lafan1_columns]
@@ -89,5 +103,44 @@ def cmd_demo(args) -> int:
     for f in files:
         print(f"  {f}")
     print("\nreal data: see docs/shards.md (mer shards build --input hf://lvhaidong/LAFAN1_Retargeting_Dataset ...)")
-    print(f"demo files: {out}")
+    retarget_walk(args, out, [r.name for r in robots if r.name in BUILTIN_ROBOTS])
+    print(f"\ndemo files: {out}")
     return 0
+
+
+def retarget_walk(args, out: Path, builtins: list[str]) -> None:
+    """Steps 3-5 of the walk (module docstring)."""
+    from mer_data.registry import robots_dir
+
+    from .demo_walk import format_results, register_example_robot, retarget_to_all
+    from .zoo import DEFAULT_MODEL, load, resolve
+
+    rep = register_example_robot(out / "urdf")
+    new = rep.robot.skeleton.name
+    print(f"\nregister a robot from its URDF (a small humanoid generated in code: {rep.robot.urdf_path.name})")
+    print(rep.summary())
+    print(f"  (in {robots_dir()}; `mer robots show {new}`, `mer robots unregister {new}` to remove it)")
+
+    name = args.model or DEFAULT_MODEL
+    res = resolve(name)
+    ckpt = load(name)
+    how = {"card": "every file checked against the sha256 of its card", "hub": "checked against the Hub's content ids",
+           "none": "local folder"}[res.verified]  # fmt: skip
+    print(f"\nmodel {name!r}: {res.source} ({how}), {res.folder}")
+    if res.card is not None:
+        print(f"  {res.card.summary}")
+    print(f"  trained on targets: {', '.join(ckpt.targets)}; references: {', '.join(ckpt.references)}; step {ckpt.step}")
+
+    src = out / "input" / args.source / "synthetic_walk1.csv"
+    targets = [*builtins, new]
+    print(f"\nretarget {src.name} ({args.source}) to {len(targets)} robots -> {out / 'retarget'}")
+    results = retarget_to_all(src, args.source, targets, ckpt, out / "retarget", show=args.show, steps=args.steps)
+    print(format_results(results))
+    unseen = [r.robot for r in results if not r.seen]
+    if unseen:
+        print(f"zero-shot (as `mer retarget --allow-unseen`): {', '.join(unseen)}: the model never saw "
+              f"{'this robot' if len(unseen) == 1 else 'these robots'}; `mer finetune --base {name} --robot {unseen[-1]} ...` adapts it")
+    print("metrics against the reference scaled to each robot (docs/model.md); the model is a demo model trained on synthetic motion")
+    for r in results:
+        if r.robot == args.show:
+            print(f"\nMCAP (Foxglove: /tf, /skeleton, /reference): {r.outputs['mcap']}\nPNG: {r.outputs['png']}")

@@ -40,7 +40,7 @@ from .writers import TargetMotion, write_csv, write_mcap, write_npz
 
 log = logging.getLogger(__name__)
 
-__all__ = ["METHODS", "RetargetResult", "source_features", "retarget_features", "retarget_file", "MODEL_FPS"]
+__all__ = ["METHODS", "RetargetResult", "source_features", "retarget_features", "retarget_file", "sequence_metrics", "MODEL_FPS"]
 
 METHODS = ("diffusion", "optimize")
 MODEL_FPS = 30.0
@@ -197,3 +197,27 @@ def retarget_file(
 
         res.outputs["png"] = plot_motion(plot, res.motion, reference_points=res.reference_points)
     return res
+
+
+def sequence_metrics(reference: np.ndarray, source: Skeleton, motion: TargetMotion) -> dict[str, float]:
+    """The paper's metrics (:func:`mer_models.metrics.window_metrics`) of a whole retargeted motion.
+
+    Args:
+        reference: (F, Jr, 9) source features (world frame) the motion was retargeted from.
+        source: the source skeleton; ``motion``: the result (world frame, same frames).
+
+    Returns:
+        metric name -> value over the whole motion (``g_mpbpe`` [m], ``mpboe`` [rad], ``mpbve`` [m/s],
+        ``jerk`` [rad/s^3], ``limit_violation`` [fraction of frames]; ``gt_*`` are NaN).
+    """
+    from mer_data.samples import TrainingSample, collate
+
+    from .metrics import window_metrics
+
+    tgt = motion.skeleton
+    feats, scaled, shift = prepare_reference(reference, source, tgt)
+    batch = collate([TrainingSample(feats.astype(np.float32), source, tgt, joint_map(tgt, source))])
+    batch["ref_scaled_pos"] = torch.from_numpy(scaled)[None]
+    out = {"q": torch.from_numpy(np.asarray(motion.q))[None], "base_pos": torch.from_numpy(np.asarray(motion.base_pos) - shift)[None],
+           "base_rot": torch.from_numpy(np.asarray(motion.base_rot))[None]}
+    return {k: float(v[0]) for k, v in window_metrics(out, batch, motion.fps).items()}

@@ -190,6 +190,8 @@ def train(
     num_workers: int = 0,
     data_info: Mapping[str, Any] | None = None,
     progress: Callable[[dict], None] | None = None,
+    init: str | Path | None = None,
+    known_robots: Mapping[str, Mapping[str, str]] | None = None,
 ) -> TrainResult:
     """Train (or resume) until ``steps`` total steps; the checkpoint folder is ``out``.
 
@@ -199,6 +201,10 @@ def train(
         steps: total optimiser steps (on resume: including those already done).
         data_info: recorded in ``config.json`` (shards, split, ...).
         progress: called on rank 0 with each log record.
+        init: a ``model.safetensors`` to start from (fine-tuning: the base's weights, loaded strictly;
+            the optimiser starts fresh). Ignored on resume, which restores its own weights.
+        known_robots: robots (``targets``/``references`` -> name -> fingerprint) recorded in the
+            checkpoint in addition to those the batches show (fine-tuning: the base's robots).
     """
     out = Path(out)
     rank, world = _dist()
@@ -213,6 +219,8 @@ def train(
     noise_gen = torch.Generator(device=dev).manual_seed(run.train.seed * 1000 + rank)
     step = 0
     robots: dict[str, dict[str, str]] = {"targets": {}, "references": {}}
+    for side, names in (known_robots or {}).items():
+        robots.setdefault(side, {}).update(dict(names))
     if resume:
         if not (out / CONFIG).is_file():
             raise CheckpointError(f"nothing to resume in {out}", path=out, fix="drop --resume to start a new run")
@@ -223,6 +231,8 @@ def train(
         torch.set_rng_state(rng[f"torch.{rank}"])
     elif (out / CONFIG).exists():
         raise CheckpointError(f"{out} already holds a checkpoint", path=out, fix="pass --resume to continue it, or choose another --out")
+    elif init is not None:
+        load_weights(model, Path(init))
     net: nn.Module = _Step(model)
     if world > 1:
         net = nn.parallel.DistributedDataParallel(net)
@@ -245,9 +255,8 @@ def train(
         save_checkpoint(
             out, model, run, robots=robots, data=data_info, metrics={"train": last}, step=step, optimizer=opt,
             trainer_state={"step": step, "epoch": step // sampler.per_epoch, "world_size": world},
-            rng_tensors=rngs,
+            rng_tensors=rngs, extra_files={LOG_FILE: log_text},
         )
-        (out / LOG_FILE).write_text(log_text)
 
     model.train()
     while step < steps:

@@ -62,7 +62,7 @@ def test_fk_matches_pytorch_kinematics(name):
             m = tf[skel.link_names[j]].get_matrix()
             expect = (r0 @ m[:, :3, 3:]).squeeze(-1) + base_pos
             torch.testing.assert_close(pos[:, j], expect, atol=tol, rtol=0)
-            link_rot = rot[:, j] @ torch.as_tensor(skel.rest_rotations[j], dtype=dtype)
+            link_rot = rot[:, j] @ torch.tensor(skel.rest_rotations[j], dtype=dtype)
             torch.testing.assert_close(link_rot, r0 @ m[:, :3, :3], atol=10 * tol, rtol=0)
 
 

@@ -71,7 +71,6 @@ def test_retarget_with_the_optimisation_baseline_needs_no_model(tmp_path, capsys
         ("nan", "walk.csv:5"),
         ("unseen", "mer finetune"),
         ("config", "model.relative_bias"),
-        ("no_model", "--method optimize"),
     ],
 )
 def test_bad_input_is_a_clear_error(tmp_path, capsys, micro_checkpoint, case, expect):  # noqa: F811
@@ -96,8 +95,6 @@ def test_bad_input_is_a_clear_error(tmp_path, capsys, micro_checkpoint, case, ex
         meta["run"]["model"]["relative_bias"] = True
         (ck / "config.json").write_text(json.dumps(meta))
         args[7] = ck
-    elif case == "no_model":
-        args = args[:6] + args[8:]
     code, _, err = run(capsys, *args)
     assert code == 1 and err.startswith("error:"), err
     assert expect in err, err

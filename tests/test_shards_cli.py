@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import shutil
 
+import numpy as np
 import pytest
 from shard_helpers import make_input
 
@@ -76,3 +77,20 @@ def test_demo(tmp_path, capsys):
     assert sorted(p.name for p in (tmp_path / "demo" / "shards").glob("*.h5")) == [
         "g1-train-00000-of-00001.h5", "h1-train-00000-of-00001.h5", "h1_2-train-00000-of-00001.h5"]  # fmt: skip
     assert len(list((tmp_path / "demo" / "mcap").glob("*.mcap"))) == 3
+    # the walk goes on: a robot registered from a URDF, the default model by name, every robot retargeted
+    assert "register a robot from its URDF" in out and "registered 'mer_demo_humanoid'" in out
+    assert "model 'mer-tiny-synthetic': bundled (every file checked against the sha256 of its card)" in out
+    robots = ["g1", "h1", "h1_2", "atlas", "oli", "tron1", "talos", "valkyrie", "mer_demo_humanoid"]
+    rows = {w[0]: line for line in out.splitlines() if len(w := line.split()) > 7 and w[0] in robots and w[1] in ("yes", "no:")}
+    assert set(robots) <= set(rows), out
+    assert "no: zero-shot" in rows["mer_demo_humanoid"] and "zero-shot (as `mer retarget --allow-unseen`): mer_demo_humanoid" in out
+    ret = tmp_path / "demo" / "retarget"
+    from mer_data.registry import get_skeleton
+
+    for robot in robots:
+        a = np.loadtxt(ret / f"{robot}.csv", delimiter=",")
+        assert a.shape == (241, 7 + get_skeleton(robot).num_dof) and np.isfinite(a).all(), robot
+    assert [p.name for p in ret.glob("*.mcap")] == ["h1.mcap"] and [p.name for p in ret.glob("*.png")] == ["h1.png"]
+    for line in (rows[r] for r in robots):  # five finite metrics per robot
+        vals = [float(x) for x in line.split()[-6:]]
+        assert np.isfinite(vals).all(), line

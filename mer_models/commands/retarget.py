@@ -20,7 +20,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--npz", help="also write a BeyondMimic-style npz")
     p.add_argument("--mcap", help="also write a Foxglove MCAP")
     p.add_argument("--plot", help="also write a PNG of stick figures over time")
-    p.add_argument("--model", help="checkpoint folder (or zoo name) for --method diffusion")
+    p.add_argument("--model", help="checkpoint folder, zoo name or ORG/NAME for --method diffusion "
+                   "(default: the bundled model mer-tiny-synthetic, for demos only)")
     p.add_argument("--method", default="diffusion", choices=["diffusion", "optimize"], help="default diffusion")
     p.add_argument("--steps", type=int, help="sampler steps (default: the model's, <= 20)")
     p.add_argument("--guidance", type=float, help="test-time energy guidance step (default: the model's)")
@@ -40,9 +41,15 @@ def cmd_retarget(args) -> int:
     kw = {"steps": args.steps, "guidance": args.guidance, "seed": args.seed, "allow_unseen": args.allow_unseen}
     if args.method == "optimize":
         kw = {}
+    model = args.model
+    if model is None and args.method == "diffusion":
+        from mer_models.zoo import DEFAULT_MODEL
+
+        model = DEFAULT_MODEL
+        print(f"no --model: using the bundled demo model {model!r} (synthetic training, not for real use)", file=sys.stderr)
     res = retarget_file(
         args.input, args.source, args.target, out_csv=args.output, npz=args.npz, mcap=args.mcap, plot=args.plot,
-        model=args.model, method=args.method, input_fps=args.fps, device=args.device, **kw,
+        model=model, method=args.method, input_fps=args.fps, device=args.device, **kw,
     )  # fmt: skip
     m = res.motion
     print(f"{args.source} -> {args.target} ({res.method}): {m.num_frames} frames at {m.fps:g} Hz", file=sys.stderr)

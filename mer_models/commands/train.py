@@ -66,16 +66,18 @@ def cmd_train(args) -> int:
         dataset = SyntheticDataset(args.source, targets, size=args.synthetic, frames=run.model.frames, augment=True, seed=run.train.seed)
         info = {"synthetic": args.synthetic, "source": args.source, "targets": list(targets), "samples": len(dataset)}
 
-    def show(rec: dict) -> None:  # called on rank 0 only
-        print(
-            f"step {rec['step']:6d}  loss {rec['loss']:.4f}  edm {rec['edm']:.4f}  f_kin {rec['f_total']:.5f} "
-            f"(kp {rec['f_kp']:.5f} cst {rec['f_cst']:.5f} vel {rec['f_vel']:.5f} norm {rec['f_norm']:.5f})  "
-            f"{rec['sec_per_step']:.2f} s/step",
-            file=sys.stderr,
-        )
-
     res = train(run, dataset, args.out, steps=args.steps, resume=args.resume, device=args.device, bf16=args.bf16,
-                num_workers=args.workers, data_info=info, progress=show)  # fmt: skip
+                num_workers=args.workers, data_info=info, progress=show_progress)  # fmt: skip
     if os.environ.get("RANK", "0") == "0":
         print(f"checkpoint {res.path} at step {res.step}")
     return 0
+
+
+def show_progress(rec: dict) -> None:
+    """One line per training log record, on stderr (called on rank 0 only)."""
+    print(
+        f"step {rec['step']:6d}  loss {rec['loss']:.4f}  edm {rec['edm']:.4f}  f_kin {rec['f_total']:.5f} "
+        f"(kp {rec['f_kp']:.5f} cst {rec['f_cst']:.5f} vel {rec['f_vel']:.5f} norm {rec['f_norm']:.5f})  "
+        f"{rec['sec_per_step']:.2f} s/step",
+        file=sys.stderr,
+    )

@@ -122,6 +122,28 @@ def _scalars(data: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _recorded_base(data: Mapping[str, Any]) -> tuple[str | None, str | None, str | None] | None:
+    """(zoo name, commit, Hub repo id) of the base ``mer finetune`` recorded; None when not a fine-tune.
+
+    Values that are not a valid name, commit or repo id are dropped (a card must validate)."""
+    from mer_data.errors import ModelZooError
+
+    from .names import is_commit, validate_model_name, validate_repo_id
+
+    if not any(k in data for k in ("base_model", "base_repo_id", "base_checkpoint")):
+        return None
+    name, rev, repo = data.get("base_model"), data.get("base_revision"), data.get("base_repo_id")
+    try:
+        name = validate_model_name(name) if isinstance(name, str) else None
+    except ModelZooError:
+        name = None
+    try:
+        repo = validate_repo_id(repo) if isinstance(repo, str) else None
+    except ModelZooError:
+        repo = None
+    return name, (rev if isinstance(rev, str) and is_commit(rev) else None), repo
+
+
 def card_from_checkpoint(
     folder: str | Path,
     *,
@@ -138,7 +160,12 @@ def card_from_checkpoint(
     summary: str | None = None,
     reproduce: str | None = None,
 ) -> ModelCard:
-    """A card whose robots, training, metrics and checkpoint fields come from ``folder/config.json``."""
+    """A card whose robots, training, metrics and checkpoint fields come from ``folder/config.json``.
+
+    ``base`` is the card of the model it was fine-tuned from; without it, the base that ``mer
+    finetune`` recorded in the checkpoint's ``data`` (``base_model``, ``base_revision``,
+    ``base_repo_id``) is used.
+    """
     meta = read_checkpoint_meta(folder)
     robots = meta.get("robots") or {}
     targets = sorted(robots.get("targets", {}))
@@ -154,6 +181,7 @@ def card_from_checkpoint(
             )
         license = DATASETS[dataset].license
         license_note = license_note if license_note is not None else DATASETS[dataset].note
+    recorded = _recorded_base(data) if base is None else None
     run = meta.get("run") or {}
     run_name = run.get("name", "?") if isinstance(run, Mapping) else "?"
     step = int(meta.get("step") or 0)
@@ -162,6 +190,9 @@ def card_from_checkpoint(
         if base is not None:
             new = sorted(set(targets) - set(base.targets))
             summary = f"`{base.name}` fine-tuned for {', '.join(new) or 'its targets'} (mer guided-diffusion retargeting)."
+        elif recorded is not None:
+            what = recorded[0] or recorded[2] or "a checkpoint"
+            summary = f"`{what}` fine-tuned for {data.get('finetune_robot') or 'its targets'} (mer guided-diffusion retargeting)."
         else:
             summary = f"mer guided-diffusion retargeting model ({run_name} configuration) for {', '.join(targets) or 'no target'}."
     if reproduce is None:
@@ -176,9 +207,9 @@ def card_from_checkpoint(
         published=published,
         files=dict(files) if files is not None else checkpoint_files(folder),
         history=tuple(history),
-        base_model=base.name if base is not None else None,
-        base_revision=base.revision if base is not None else None,
-        base_repo_id=base.repo_id if base is not None and base.status == "published" else None,
+        base_model=base.name if base is not None else (recorded[0] if recorded else None),
+        base_revision=base.revision if base is not None else (recorded[1] if recorded else None),
+        base_repo_id=(base.repo_id if base.status == "published" else None) if base is not None else (recorded[2] if recorded else None),
         robots={"targets": targets, "references": references},
         training=training,
         metrics=dict(meta.get("metrics") or {}),

@@ -1,0 +1,66 @@
+"""mer_data.atomic: nothing half-written under the final name; permissions as open()/mkdir give."""
+
+from __future__ import annotations
+
+import os
+import stat
+
+import pytest
+
+from mer_data.atomic import atomic_dir, atomic_write
+
+
+@pytest.fixture
+def umask_022():
+    old = os.umask(0o022)
+    yield
+    os.umask(old)
+
+
+def test_atomic_write_text_and_bytes(tmp_path):
+    p = atomic_write(tmp_path / "sub" / "a.txt", "héllo\n")
+    assert p.read_bytes() == "héllo\n".encode()
+    atomic_write(p, b"\x00\x01")
+    assert p.read_bytes() == b"\x00\x01"
+    assert sorted(x.name for x in p.parent.iterdir()) == ["a.txt"]
+
+
+def test_atomic_write_mode_follows_umask(tmp_path, umask_022):
+    p = atomic_write(tmp_path / "card.md", "x")
+    assert stat.S_IMODE(p.stat().st_mode) == 0o644  # mkstemp alone would leave 0600
+
+
+def test_atomic_write_failure_keeps_old_file_and_leaves_no_temporary(tmp_path, monkeypatch):
+    p = atomic_write(tmp_path / "a.txt", "old")
+
+    def boom(src, dst):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(os, "replace", boom)
+    with pytest.raises(OSError, match="disk full"):
+        atomic_write(p, "new")
+    assert p.read_text() == "old"
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["a.txt"]
+
+
+def test_atomic_dir_replaces_folder_with_umask_mode(tmp_path, umask_022):
+    final = tmp_path / "robot"
+    atomic_dir(final, lambda d: (d / "one.txt").write_text("1"))
+    assert stat.S_IMODE(final.stat().st_mode) == 0o755  # mkdtemp alone would leave 0700
+    atomic_dir(final, lambda d: (d / "two.txt").write_text("2"))
+    assert sorted(x.name for x in final.iterdir()) == ["two.txt"]
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["robot"]
+
+
+def test_atomic_dir_failure_keeps_old_folder(tmp_path):
+    final = tmp_path / "robot"
+    atomic_dir(final, lambda d: (d / "one.txt").write_text("1"))
+
+    def half(d):
+        (d / "partial.txt").write_text("half")
+        raise ValueError("bad URDF")
+
+    with pytest.raises(ValueError, match="bad URDF"):
+        atomic_dir(final, half)
+    assert sorted(x.name for x in final.iterdir()) == ["one.txt"]
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["robot"]
