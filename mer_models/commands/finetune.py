@@ -6,6 +6,8 @@ import argparse
 import os
 import sys
 
+from .train import add_run_overrides
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -27,12 +29,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--split", default="train", choices=["train", "eval", "all"], help="shard windows to use (default train)")
     p.add_argument("--fraction", type=float, default=0.5, help="share of samples retargeted to the new robot (default 0.5)")
     p.add_argument("--resume", action="store_true", help="continue the fine-tune in --out exactly")
-    p.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
-    p.add_argument("--batch-size", type=int, help="override the base's batch size")
-    p.add_argument("--lr", type=float, help="override the base's learning rate")
-    p.add_argument("--seed", type=int, help="override the base's seed")
-    p.add_argument("--save-every", type=int, help="steps between checkpoints")
-    p.add_argument("--log-every", type=int, help="steps between log lines")
+    add_run_overrides(p, "the base's")
     p.set_defaults(func=cmd_finetune)
 
 

@@ -24,18 +24,23 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="checkpoint folder to write")
     p.add_argument("--steps", type=int, default=1000, help="total optimiser steps (default 1000)")
     p.add_argument("--resume", action="store_true", help="continue the checkpoint in --out exactly")
-    p.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
     p.add_argument("--bf16", action="store_true", help="bfloat16 autocast for the network")
-    p.add_argument("--batch-size", type=int, help="override the preset's batch size")
-    p.add_argument("--lr", type=float, help="override the preset's learning rate")
-    p.add_argument("--seed", type=int, help="override the preset's seed")
-    p.add_argument("--save-every", type=int, help="steps between checkpoints")
-    p.add_argument("--log-every", type=int, help="steps between log lines")
+    add_run_overrides(p, "the preset's")
     p.add_argument("--split", default="train", choices=["train", "eval", "all"], help="shard windows to train on (default train)")
     p.add_argument("--targets", nargs="+", help="only these target robots (default: all in the shards)")
     p.add_argument("--source", default="g1", help="reference robot of --synthetic data")
     p.add_argument("--workers", type=int, default=0, help="DataLoader worker processes")
     p.set_defaults(func=cmd_train)
+
+
+def add_run_overrides(p: argparse.ArgumentParser, of: str) -> None:
+    """The options ``mer train`` and ``mer finetune`` share: device and run-config overrides."""
+    p.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
+    p.add_argument("--batch-size", type=int, help=f"override {of} batch size")
+    p.add_argument("--lr", type=float, help=f"override {of} learning rate")
+    p.add_argument("--seed", type=int, help=f"override {of} seed")
+    p.add_argument("--save-every", type=int, help="steps between checkpoints")
+    p.add_argument("--log-every", type=int, help="steps between log lines")
 
 
 def cmd_train(args) -> int:
