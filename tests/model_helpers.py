@@ -10,9 +10,11 @@ import torch
 
 from mer_data.jointmap import joint_map
 from mer_data.registry import get_skeleton
+from mer_data.rotations import quat_to_matrix
 from mer_data.samples import TrainingSample, collate
 from mer_models.config import ModelConfig, RunConfig, preset
 from mer_models.synthetic import SyntheticDataset, _features, _origin_normalize, synthetic_motion
+from mer_models.writers import TargetMotion, write_csv
 
 #: a very small network for unit tests (same architecture, seconds on CPU)
 MICRO = ModelConfig(hidden=24, layers=1, heads=2, cross_heads_per_condition=1, ffn=32, dropout=0.0, frames=60)
@@ -25,6 +27,14 @@ def micro_run(batch_size: int = 4) -> RunConfig:
         model=MICRO,
         train=dataclasses.replace(run.train, batch_size=batch_size, warmup=2, save_every=1000, log_every=1, opt_iters=3),
     )
+
+
+def synthetic_csv(path, robot: str = "g1", frames: int = 90, seed: int = 0):
+    """Write a synthetic motion of ``robot`` as a LAFAN1-layout CSV at 30 Hz; returns the path."""
+    s = get_skeleton(robot)
+    m = synthetic_motion(s, frames, seed=seed)
+    rot = quat_to_matrix(torch.from_numpy(m["base_quat"])).numpy()
+    return write_csv(path, TargetMotion(s, 30.0, m["q"], m["base_pos"], rot))
 
 
 def synthetic_window(source: str = "g1", frames: int = 60, seed: int = 0) -> np.ndarray:

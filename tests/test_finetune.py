@@ -12,17 +12,16 @@ from safetensors.torch import load_file
 from mer_data.example_robot import EXAMPLE_ROBOT, write_example_urdf
 from mer_data.register import register_robot
 from mer_data.registry import get_skeleton
-from mer_data.rotations import quat_to_matrix
 from mer_models import zoo
 from mer_models.checkpoint import check_robot, load_checkpoint
 from mer_models.cli import main
 from mer_models.finetune import WithNewTarget
-from mer_models.synthetic import SyntheticDataset, synthetic_motion
-from mer_models.writers import TargetMotion, write_csv
+from mer_models.synthetic import SyntheticDataset
 from mer_models.zoo.fromckpt import card_from_checkpoint
 from mer_models.zoo.registry import bundled_dir
 from mer_models.zoo.render import render_card
 
+from model_helpers import synthetic_csv
 from zoo_helpers import make_checkpoint
 
 FAST = ["--synthetic", "8", "--batch-size", "4", "--log-every", "1"]
@@ -41,11 +40,6 @@ def robot(tmp_path):
     return EXAMPLE_ROBOT
 
 
-def _csv(path, frames=40):
-    s = get_skeleton("g1")
-    m = synthetic_motion(s, frames, seed=3)
-    rot = quat_to_matrix(torch.from_numpy(m["base_quat"])).numpy()
-    return write_csv(path, TargetMotion(s, 30.0, m["q"], m["base_pos"], rot))
 
 
 def test_finetune_the_bundled_model_to_a_registered_robot_end_to_end(tmp_path, capsys, robot):
@@ -65,7 +59,7 @@ def test_finetune_the_bundled_model_to_a_registered_robot_end_to_end(tmp_path, c
     assert ckpt.data["finetune_robot"] == robot and ckpt.data["base_data"] == base.data
 
     # it retargets to the new robot without --allow-unseen
-    src = _csv(tmp_path / "walk.csv")
+    src = synthetic_csv(tmp_path / "walk.csv", frames=40, seed=3)
     code, _, err = run(capsys, "retarget", src, "--source", "g1", "--target", robot, "--model", out, "-o", tmp_path / "r.csv", "--steps", "2")
     assert code == 0, err
     a = np.loadtxt(tmp_path / "r.csv", delimiter=",")

@@ -7,28 +7,17 @@ import shutil
 
 import numpy as np
 import pytest
-import torch
 
 from mer_data.registry import get_skeleton
-from mer_data.rotations import quat_to_matrix
 from mer_models.cli import main
-from mer_models.synthetic import synthetic_motion
-from mer_models.writers import TargetMotion, write_csv
 
-from model_helpers import micro_checkpoint  # noqa: F401 (fixture)
+from model_helpers import micro_checkpoint, synthetic_csv  # noqa: F401 (fixture)
 
 
 def run(capsys, *argv):
     code = main([str(a) for a in argv])
     out = capsys.readouterr()
     return code, out.out, out.err
-
-
-def _csv(path, robot="g1", frames=90, seed=0):
-    s = get_skeleton(robot)
-    m = synthetic_motion(s, frames, seed=seed)
-    rot = quat_to_matrix(torch.from_numpy(m["base_quat"])).numpy()
-    return write_csv(path, TargetMotion(s, 30.0, m["q"], m["base_pos"], rot))
 
 
 def test_train_command_writes_a_checkpoint(tmp_path, capsys):
@@ -40,7 +29,7 @@ def test_train_command_writes_a_checkpoint(tmp_path, capsys):
 
 
 def test_retarget_writes_every_output_within_limits(tmp_path, capsys, micro_checkpoint):  # noqa: F811
-    src = _csv(tmp_path / "walk.csv")
+    src = synthetic_csv(tmp_path / "walk.csv")
     out = tmp_path / "out"
     code, o, err = run(capsys, "retarget", src, "--source", "g1", "--target", "h1", "--model", micro_checkpoint,
                        "-o", out / "h1.csv", "--npz", out / "h1.npz", "--mcap", out / "h1.mcap", "--plot", out / "h1.png", "--steps", "3")  # fmt: skip
@@ -57,7 +46,7 @@ def test_retarget_writes_every_output_within_limits(tmp_path, capsys, micro_chec
 
 
 def test_retarget_with_the_optimisation_baseline_needs_no_model(tmp_path, capsys):
-    src = _csv(tmp_path / "walk.csv", frames=40)
+    src = synthetic_csv(tmp_path / "walk.csv", frames=40)
     code, _, err = run(capsys, "retarget", src, "--source", "g1", "--target", "tron1", "--method", "optimize", "-o", tmp_path / "t.csv")
     assert code == 0, err
     assert np.loadtxt(tmp_path / "t.csv", delimiter=",").shape == (40, 7 + 8)
@@ -74,12 +63,12 @@ def test_retarget_with_the_optimisation_baseline_needs_no_model(tmp_path, capsys
     ],
 )
 def test_bad_input_is_a_clear_error(tmp_path, capsys, micro_checkpoint, case, expect):  # noqa: F811
-    src = _csv(tmp_path / "walk.csv", frames=30)
+    src = synthetic_csv(tmp_path / "walk.csv", frames=30)
     args = ["retarget", src, "--source", "g1", "--target", "h1", "--model", micro_checkpoint, "-o", tmp_path / "o.csv"]
     if case == "unknown_robot":
         args[5] = "r2d2"
     elif case == "wrong_columns":
-        args[1] = _csv(tmp_path / "h1.csv", robot="h1", frames=30)  # an H1 file given as G1
+        args[1] = synthetic_csv(tmp_path / "h1.csv", robot="h1", frames=30)  # an H1 file given as G1
     elif case == "nan":
         lines = src.read_text().splitlines()
         cells = lines[4].split(",")
@@ -105,8 +94,8 @@ def test_evaluate_prints_the_papers_table(tmp_path, capsys, micro_checkpoint):  
     data = tmp_path / "data"
     clips = ["dance1_subject1", "fallAndGetUp1_subject1", "fight1_subject2", "walk1_subject1"]
     for k, clip in enumerate(clips):
-        _csv(data / "g1" / f"{clip}.csv", "g1", frames=120, seed=k)
-        _csv(data / "h1" / f"{clip}.csv", "h1", frames=120, seed=10 + k)
+        synthetic_csv(data / "g1" / f"{clip}.csv", "g1", frames=120, seed=k)
+        synthetic_csv(data / "h1" / f"{clip}.csv", "h1", frames=120, seed=10 + k)
     code, out, err = run(capsys, "evaluate", "--model", micro_checkpoint, "--input", data, "--source", "g1",
                          "--targets", "g1", "h1", "tron1", "--max-windows", "2", "--steps", "2", "--save", tmp_path / "r.json",
                          "--opt-iters", "10", "--opt-gn-iters", "10")  # fmt: skip

@@ -5,18 +5,15 @@ from __future__ import annotations
 import json
 
 import numpy as np
-import torch
 
 from mer_data.registry import get_skeleton
-from mer_data.rotations import quat_to_matrix
 from mer_models import zoo
 from mer_models.cli import main
-from mer_models.synthetic import synthetic_motion
-from mer_models.writers import TargetMotion, write_csv
 from mer_models.zoo.fromckpt import card_from_checkpoint
 from mer_models.zoo.registry import Registry, bundled_dir
 
 from conftest import REPO
+from model_helpers import synthetic_csv
 
 DEMO_TARGETS = {"g1", "h1", "h1_2", "atlas", "oli", "tron1"}
 
@@ -68,16 +65,11 @@ def test_a_source_checkout_and_an_install_read_the_same_card():
     assert src.files == pkg.files and src.metrics == pkg.metrics
 
 
-def _csv(path, frames=45):
-    s = get_skeleton("g1")
-    m = synthetic_motion(s, frames, seed=5)
-    rot = quat_to_matrix(torch.from_numpy(m["base_quat"])).numpy()
-    return write_csv(path, TargetMotion(s, 30.0, m["q"], m["base_pos"], rot))
 
 
 def test_retarget_by_name_and_by_default_offline(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("HF_HUB_OFFLINE", "1")
-    src = _csv(tmp_path / "walk.csv")
+    src = synthetic_csv(tmp_path / "walk.csv", frames=45, seed=5)
     assert main(["retarget", str(src), "--source", "g1", "--target", "tron1", "--model", zoo.DEFAULT_MODEL,
                  "-o", str(tmp_path / "a.csv"), "--steps", "2"]) == 0  # fmt: skip
     assert main(["retarget", str(src), "--source", "g1", "--target", "tron1", "-o", str(tmp_path / "b.csv"), "--steps", "2"]) == 0
@@ -95,5 +87,5 @@ def test_the_library_still_needs_a_model_for_diffusion(tmp_path):
     from mer_models.retarget import retarget_file
 
     with pytest.raises(MerError, match="--method optimize"):
-        retarget_file(_csv(tmp_path / "w.csv", frames=10), "g1", "h1", out_csv=tmp_path / "o.csv")
+        retarget_file(synthetic_csv(tmp_path / "w.csv", frames=10, seed=5), "g1", "h1", out_csv=tmp_path / "o.csv")
     assert not (tmp_path / "o.csv").exists()
