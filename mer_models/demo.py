@@ -113,7 +113,8 @@ def retarget_walk(args, out: Path, builtins: list[str]) -> None:
     from mer_data.registry import robots_dir
 
     from .demo_walk import format_results, register_example_robot, retarget_to_all
-    from .zoo import DEFAULT_MODEL, load, resolve
+    from .checkpoint import load_checkpoint
+    from .zoo import DEFAULT_MODEL, resolve
 
     rep = register_example_robot(out / "urdf")
     new = rep.robot.skeleton.name
@@ -122,8 +123,8 @@ def retarget_walk(args, out: Path, builtins: list[str]) -> None:
     print(f"  (in {robots_dir()}; `mer robots show {new}`, `mer robots unregister {new}` to remove it)")
 
     name = args.model or DEFAULT_MODEL
-    res = resolve(name)
-    ckpt = load(name)
+    res = resolve(name)  # verified once; the checkpoint is built from the verified folder
+    ckpt = load_checkpoint(res.folder)
     how = {"card": "every file checked against the sha256 of its card", "hub": "checked against the Hub's content ids",
            "none": "local folder"}[res.verified]  # fmt: skip
     print(f"\nmodel {name!r}: {res.source} ({how}), {res.folder}")
