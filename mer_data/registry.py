@@ -10,13 +10,13 @@ registry and renamed into place; a failure or an interruption leaves no half-wri
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import re
 import shutil
 import sys
 import threading
-import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 

@@ -27,6 +27,7 @@ from typing import Callable, Iterator
 
 import torch
 
+from ..atomic import atomic_write
 from ..errors import MerError, ShardBuildError, ShardFormatError
 from .card import write_card
 from .clips import BuildContext, ClipResult, ClipTask, process_clip
@@ -204,9 +205,7 @@ def build_shards(
         log.warning("no dataset card written: %s", exc)
     suffix = "" if shard_index is None else f"-{shard_index:05d}-of-{cfg.num_shards:05d}"
     dest = out / f"build-report{suffix}.json"
-    tmp = temp_name(dest)
-    tmp.write_text(json.dumps(report.to_dict(), indent=1, sort_keys=True))
-    os.replace(tmp, dest)
+    atomic_write(dest, json.dumps(report.to_dict(), indent=1, sort_keys=True))
     for s in report.short:
         log.warning("skipped %s/%s: %s", s["robot"], s["clip"], s.get("error", "shorter than a window"))
     return report

@@ -9,10 +9,9 @@ robot and split (``g1_train``, ``g1_eval``...), so ``load_dataset(<folder or rep
 from __future__ import annotations
 
 import json
-import os
-import uuid
 from pathlib import Path
 
+from ..atomic import atomic_write
 from ..errors import ShardFormatError
 from .reader import PathsLike, find_shards, open_shard
 from .schema import FORMAT_NAME, FORMAT_VERSION, ShardMeta
@@ -151,8 +150,4 @@ def write_card(out: str | Path, *, input_label: str | None = None, dest: str | P
     """Render the card of the shards in folder ``out`` into ``dest`` (default ``out/README.md``), atomically."""
     dest = Path(dest) if dest else Path(out) / "README.md"
     text = render_card(out, input_label=input_label)
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dest.with_name(f".{dest.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}")
-    tmp.write_text(text)
-    os.replace(tmp, dest)
-    return dest
+    return atomic_write(dest, text)
