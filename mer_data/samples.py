@@ -13,10 +13,12 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from .scaling import scale_reference_positions
+from .fk import fk_skeleton, skeleton_tensors
+from .rotations import axis_angle_to_matrix
+from .scaling import ScalingMethod, orientation_goals, scale_reference_positions
 from .skeleton import Skeleton
 
-__all__ = ["TrainingSample", "graph_arrays", "collate", "GRAPH_KEYS"]
+__all__ = ["TrainingSample", "graph_arrays", "collate", "reference_goals", "GRAPH_KEYS"]
 
 GRAPH_KEYS = ("parents", "offsets", "axes", "lower", "upper", "nominal", "psi", "mimic_source",
               "mimic_multiplier", "mimic_offset", "revolute")  # fmt: skip
@@ -97,12 +99,36 @@ def _positions(features: np.ndarray) -> np.ndarray:
     return np.concatenate([f[:, :1, 3:6], f[:, 1:, 1:4]], axis=1)
 
 
-def collate(samples: Sequence[TrainingSample]) -> dict:
+def reference_goals(
+    features: np.ndarray, ref: Skeleton, target: Skeleton, *, scaling: ScalingMethod = "segments"
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The goals a reference sets a target (:mod:`mer_data.scaling`).
+
+    Args:
+        features: (T, J_ref, 9) reference features (world or window frame).
+
+    Returns:
+        scaled positions (T, J_ref, 3) [m], orientation goals (T, J_ref, 3, 3) and their mask (J_ref,).
+    """
+    f = np.asarray(features, np.float64)
+    st = skeleton_tensors(ref, torch.float64)
+    q = torch.from_numpy(f[:, :, 0].copy())
+    q[:, 0] = 0
+    base_rot = axis_angle_to_matrix(torch.from_numpy(f[:, 0, 0:3].copy()))
+    _, rot = fk_skeleton(st, q, torch.from_numpy(f[:, 0, 3:6].copy()), base_rot=base_rot)
+    scaled = scale_reference_positions(_positions(f), ref, target, rotations=rot.numpy(), method=scaling)
+    goal_rot, mask = orientation_goals(rot.numpy(), ref, target)
+    return scaled, goal_rot, mask
+
+
+def collate(samples: Sequence[TrainingSample], *, scaling: ScalingMethod = "segments") -> dict:
     """Pad samples into a batch.
 
     Returns tensors ``reference`` (B, T, Jr, 9), ``target`` (B, T, Jt, 9) (zeros where absent) with
     ``has_target`` (B,), ``joint_map`` (B, Jt, Jr), ``ref_scaled_pos`` (B, T, Jr, 3) (the reference
-    node positions body-part scaled to the target, :mod:`mer_data.scaling`), and per side (``ref_*``, ``tgt_*``) the graph
+    node positions scaled to the target by ``scaling``, :mod:`mer_data.scaling`), ``ref_goal_rot``
+    (B, T, Jr, 3, 3) and ``ref_rot_mask`` (B, Jr) (orientation goals: :func:`reference_goals`),
+    and per side (``ref_*``, ``tgt_*``) the graph
     arrays of :data:`GRAPH_KEYS` padded to the batch's node count plus a node ``mask``; padding
     nodes hang off the base with zero offset and axis, so FK of a padded batch is valid. Also
     ``ref_names`` / ``tgt_names`` (robot names) and ``provenance`` (list of dicts).
@@ -123,6 +149,8 @@ def collate(samples: Sequence[TrainingSample]) -> dict:
     batch["has_target"] = torch.zeros(B, dtype=torch.bool)
     batch["joint_map"] = torch.zeros(B, Jt, Jr)
     batch["ref_scaled_pos"] = torch.zeros(B, T, Jr, 3)
+    batch["ref_goal_rot"] = torch.eye(3).expand(B, T, Jr, 3, 3).clone()
+    batch["ref_rot_mask"] = torch.zeros(B, Jr, dtype=torch.bool)
     for b, s in enumerate(samples):
         jr, jt = s.reference.shape[1], s.target_skeleton.num_nodes
         batch["reference"][b, :, :jr] = torch.from_numpy(np.asarray(s.reference, np.float32))
@@ -130,9 +158,10 @@ def collate(samples: Sequence[TrainingSample]) -> dict:
             batch["target"][b, :, :jt] = torch.from_numpy(np.asarray(s.target, np.float32))
             batch["has_target"][b] = True
         batch["joint_map"][b, :jt, :jr] = torch.from_numpy(s.joint_map.astype(np.float32))
-        batch["ref_scaled_pos"][b, :, :jr] = torch.from_numpy(
-            scale_reference_positions(_positions(s.reference), s.reference_skeleton, s.target_skeleton)
-        )
+        scaled, goal_rot, rot_mask = reference_goals(s.reference, s.reference_skeleton, s.target_skeleton, scaling=scaling)
+        batch["ref_scaled_pos"][b, :, :jr] = torch.from_numpy(scaled)
+        batch["ref_goal_rot"][b, :, :jr] = torch.from_numpy(goal_rot)
+        batch["ref_rot_mask"][b, :jr] = torch.from_numpy(rot_mask)
     batch["ref_names"] = [s.name for s in refs]
     batch["tgt_names"] = [s.name for s in tgts]
     batch["provenance"] = [dict(s.provenance) for s in samples]

@@ -1,42 +1,85 @@
-"""Body-part scaling of a reference motion to a target skeleton (paper, Implementation Details).
+"""Scaling a reference motion to a target skeleton: the goals the energy tracks.
 
-For each body part ``k`` (a start point and a chain of key points, from the reference's card)::
+Two methods (``method=``):
+
+``segments`` (default): **directions from the reference, lengths from the target**, so that the
+scaled reference is a pose the target can actually reach.
+
+* The *pelvis centre* ``c`` (mid-point of the hips) is the body that carries locomotion. Its
+  trajectory is scaled by ``alpha_root`` about the window origin (heights about the ground z = 0);
+  ``alpha_root`` puts the scaled standing zero pose's feet at the target's own standing heights.
+* The *base* goal is where the target's own root link sits for that pelvis centre and the
+  reference's base orientation ``R_b``: ``p'_0 = c' + (p_0 - c) - R_b (c_T - c_R)`` (``c_T``,
+  ``c_R``: the zero-pose pelvis centres in each root frame). So the base key point means the same
+  body on every robot (Talos' root link sits 0.27 m above its hips, G1's 0.13 m).
+* *Hips* sit about ``c'`` and *shoulders* about the shoulder centre ``s'`` at the target's widths,
+  in the reference's directions. The shoulder centre is the target's own zero-pose trunk vector
+  ``s_T - c_T`` turned by the reference trunk's rotation from its zero pose (a frame from the
+  pelvis-to-shoulder vector and the shoulder line) and stretched as the reference's trunk is.
+* *Limbs* (hip → knee → ankle → toe, shoulder → elbow → hand): every segment is scaled by its own
+  ratio ``|b_T - a_T| / |b_R - a_R|`` of zero-pose lengths, keeping the reference's direction.
+  A segment that is rigid in the reference (no joint between ``a`` and ``b``: a toe on the foot,
+  H1's hand on its forearm) is the target's own zero-pose vector turned by the reference body's
+  rotation instead, so a flat foot stays flat on a robot whose toe sits lower under the ankle.
+* Nodes that are not key points follow their nearest key-point (or base) ancestor with that
+  segment's ratio. A segment the target lacks (no knee, say) falls back to the body part's
+  ``alpha_k``.
+
+Used with the target's own motion as reference it is the identity; at the zero pose every scaled
+segment has the target's length.
+
+``parts``: the paper's per-body-part factor (Implementation Details)::
 
     alpha_k = argmin_a  sum_j || a * l_j^ref - l_j^target ||^2  =  sum_j l_j^ref l_j^tgt / sum_j (l_j^ref)^2
 
-where ``l_j`` is the cumulative *bone* length from the part's start to key point ``j``: the sum of
-the straight distances between consecutive key points of the chain at the zero pose (hip → knee →
-ankle → toe). Bone lengths do not depend on the rest pose (bent G1 elbows and a straight Atlas arm
-measure the same), and unlike summed link offsets they ignore sideways zig-zags of a joint cluster
-(H1's wide hip). The paper writes ``alpha * l_j ≈ l_j^o``; we scale the reference *to* the target,
-the direction that makes the scaled reference a goal the target can reach.
+with ``l_j`` the cumulative bone length from the part's start to key point ``j`` at the zero pose.
+One factor per chain stretches whole chains by one number, so single segments come out wrong (H1's
+upper arm 0.279 m against its 0.333 m): kept for comparison (docs/decisions.md).
 
-Scaled positions (every frame)::
-
-    base:       p'_0 = o + alpha_root * (p_0 - o)          (o: the window origin, z about the ground)
-    key point:  p'_j = p'_s + alpha_k * (p_j - p_s)        (s: the part's start, already scaled)
-    other node: p'_n = p'_a + alpha_a * (p_n - p_a)        (a: nearest key-point/base ancestor)
-
-``alpha_root`` keeps the feet on the ground: it is the base scale for which the reference's zero
-pose, standing on the ground and scaled, puts its ankles and toes at the target's own standing
-heights (least squares). Where either robot has no feet it is the ratio of standing base heights.
-A part the target lacks falls back to ``alpha_root``.
+Orientation goals (:func:`orientation_goals`): the base, the feet (ankle bodies) and the hands are
+tracked in orientation relative to each robot's zero-pose frame; a hand's goal is turned by the
+rotation that takes the target's zero-pose forearm onto the reference's, so robots whose arms rest
+differently (Atlas' T-pose, G1's hanging arms) still mean the same hand pose.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
 from .skeleton import Skeleton
 
-__all__ = ["cumulative_lengths", "body_part_scales", "scale_reference_positions", "ROOT_PART"]
+__all__ = [
+    "SCALING_METHODS",
+    "ScalingMethod",
+    "ORIENTED_KEYPOINTS",
+    "cumulative_lengths",
+    "body_part_scales",
+    "segment_ratios",
+    "scale_reference_positions",
+    "orientation_calibration",
+    "orientation_goals",
+    "ROOT_PART",
+]
 
 ROOT_PART = "root"
+ScalingMethod = Literal["segments", "parts"]
+SCALING_METHODS: tuple[str, ...] = ("segments", "parts")
 _FEET = ("left_ankle", "right_ankle", "left_toe", "right_toe")
+_CHAINS = (
+    ("left_hip", ("left_knee", "left_ankle", "left_toe")),
+    ("right_hip", ("right_knee", "right_ankle", "right_toe")),
+    ("left_shoulder", ("left_elbow", "left_hand")),
+    ("right_shoulder", ("right_elbow", "right_hand")),
+)
+#: Key points whose orientation the energy tracks (besides the base, which is always tracked).
+ORIENTED_KEYPOINTS: tuple[str, ...] = ("left_ankle", "right_ankle", "left_hand", "right_hand")
 
 
+# ---- the paper's body-part factors ---------------------------------------------------------------
 def cumulative_lengths(skel: Skeleton, start: str, keypoints) -> dict[str, float]:
     """``l_j`` [m]: bone length from ``start`` along the chain of ``keypoints`` (zero pose).
 
@@ -71,8 +114,27 @@ def _standing(skel: Skeleton) -> np.ndarray:
     return rest - np.array([0.0, 0.0, rest[:, 2].min()])
 
 
+def _feet_root_scale(ref: Skeleton, target: Skeleton, apply, centre_height: float, default: float) -> float:
+    """``alpha_root`` that puts the scaled standing zero pose's feet at the target's standing heights.
+
+    ``apply(positions, root)`` scales (J_ref, 3) positions; their feet's z is affine in ``root`` with
+    slope ``centre_height`` (the height of the point the root factor scales).
+    """
+    feet = [k for k in _FEET if ref.keypoints.get(k, -1) >= 0 and target.keypoints.get(k, -1) >= 0]
+    ref_stand, tgt_stand = _standing(ref), _standing(target)
+    root = math.nan
+    if feet and centre_height > 1e-6:
+        z1 = apply(ref_stand, 1.0)[..., 2]
+        got = np.array([z1[ref.keypoints[k]] for k in feet])
+        want = np.array([tgt_stand[target.keypoints[k], 2] for k in feet])
+        root = 1.0 + float(np.mean(want - got)) / centre_height
+    if not (math.isfinite(root) and root > 0):
+        root = default
+    return root
+
+
 def body_part_scales(ref: Skeleton, target: Skeleton) -> dict[str, float]:
-    """``alpha_k`` per body part of the reference, plus ``"root"``; NaN-free (fallbacks applied)."""
+    """The paper's ``alpha_k`` per body part of the reference, plus ``"root"``; NaN-free (fallbacks applied)."""
     tparts = {b.name: b for b in target.body_parts}
     parts: dict[str, float] = {}
     for part in ref.body_parts:
@@ -81,51 +143,19 @@ def body_part_scales(ref: Skeleton, target: Skeleton) -> dict[str, float]:
             cumulative_lengths(ref, part.start, part.keypoints),
             cumulative_lengths(target, tpart.start, tpart.keypoints),
         )
-    feet = [k for k in _FEET if ref.keypoints.get(k, -1) >= 0 and target.keypoints.get(k, -1) >= 0]
-    ref_stand, tgt_stand = _standing(ref), _standing(target)
-    base_h = ref_stand[0, 2]
-    root = math.nan
-    if feet and base_h > 1e-6:
-        # z of the scaled feet is affine in alpha_root with slope base_h: solve for the target's heights
-        trial = {**{k: (1.0 if math.isnan(v) else v) for k, v in parts.items()}, ROOT_PART: 1.0}
-        z1 = _scale(ref_stand, ref, trial, None)[..., 2]
-        got = np.array([z1[ref.keypoints[k]] for k in feet])
-        want = np.array([tgt_stand[target.keypoints[k], 2] for k in feet])
-        root = 1.0 + float(np.mean(want - got)) / base_h
-    if not (math.isfinite(root) and root > 0):
-        tgt_h = tgt_stand[0, 2]
-        root = tgt_h / base_h if base_h > 1e-6 and tgt_h > 1e-6 else 1.0
+    base_h, tgt_h = _standing(ref)[0, 2], _standing(target)[0, 2]
+    default = tgt_h / base_h if base_h > 1e-6 and tgt_h > 1e-6 else 1.0
+    trial = {k: (1.0 if math.isnan(v) else v) for k, v in parts.items()}
+    root = _feet_root_scale(
+        ref, target, lambda p, a: _scale_parts(p, ref, {**trial, ROOT_PART: a}, None), base_h, default
+    )
     out = {ROOT_PART: root}
     out.update({k: (root if math.isnan(v) else v) for k, v in parts.items()})
     return out
 
 
-def scale_reference_positions(
-    positions: np.ndarray,
-    ref: Skeleton,
-    target: Skeleton,
-    *,
-    origin_xy: np.ndarray | None = None,
-    scales: dict[str, float] | None = None,
-) -> np.ndarray:
-    """Scale reference node positions to the target's size (see module docstring).
-
-    Args:
-        positions: (..., J_ref, 3) world positions of the reference nodes [m].
-        origin_xy: (..., 2) point the base trajectory is scaled about (default: the origin, as in
-            origin-normalized windows); heights are scaled about the ground z = 0.
-        scales: precomputed :func:`body_part_scales` (computed here if omitted).
-
-    Returns:
-        (..., J_ref, 3) scaled positions.
-    """
-    scales = scales or body_part_scales(ref, target)
-    return _scale(np.asarray(positions, dtype=np.float64), ref, scales, origin_xy)
-
-
-def _scale(positions: np.ndarray, ref: Skeleton, scales: dict[str, float], origin_xy) -> np.ndarray:
+def _scale_parts(positions: np.ndarray, ref: Skeleton, scales: dict[str, float], origin_xy) -> np.ndarray:
     root = scales[ROOT_PART]
-    # which part each key point belongs to, and the part's start node
     part_of: dict[int, tuple[int, float]] = {}
     for part in ref.body_parts:
         s = 0 if part.start == "base" else ref.keypoints.get(part.start, -1)
@@ -135,17 +165,13 @@ def _scale(positions: np.ndarray, ref: Skeleton, scales: dict[str, float], origi
             j = ref.keypoints.get(k, -1)
             if j >= 0 and j not in part_of:
                 part_of[j] = (s, scales.get(part.name, root))
-    # scale started by each anchor (for non-key nodes below it)
     anchor_scale = {0: scales.get(ref.body_parts[0].name, root) if ref.body_parts else root}
     for part in ref.body_parts:
         s = 0 if part.start == "base" else ref.keypoints.get(part.start, -1)
         if s > 0 and s not in anchor_scale:
             anchor_scale[s] = scales.get(part.name, root)
-
     out = np.empty_like(positions)
-    o = np.zeros(positions.shape[:-2] + (2,)) if origin_xy is None else np.asarray(origin_xy, np.float64)
-    out[..., 0, :2] = o + root * (positions[..., 0, :2] - o)
-    out[..., 0, 2] = root * positions[..., 0, 2]
+    out[..., 0, :] = _scale_about_origin(positions[..., 0, :], root, origin_xy)
     anchors = {0, *part_of, *anchor_scale}
     for n in range(1, ref.num_nodes):
         if n in part_of and part_of[n][0] < n:
@@ -157,3 +183,277 @@ def _scale(positions: np.ndarray, ref: Skeleton, scales: dict[str, float], origi
             alpha = anchor_scale.get(s, part_of.get(s, (0, root))[1])
         out[..., n, :] = out[..., s, :] + alpha * (positions[..., n, :] - positions[..., s, :])
     return out
+
+
+def _scale_about_origin(p: np.ndarray, root: float, origin_xy) -> np.ndarray:
+    """(..., 3) points scaled by ``root`` about ``(origin_xy, 0)`` (heights about the ground)."""
+    o = np.zeros(p.shape[:-1] + (2,)) if origin_xy is None else np.asarray(origin_xy, np.float64)
+    out = np.empty_like(p)
+    out[..., :2] = o + root * (p[..., :2] - o)
+    out[..., 2] = root * p[..., 2]
+    return out
+
+
+# ---- segments ----------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _SegmentPlan:
+    """What :func:`scale_reference_positions` needs for one (reference, target) pair (zero-pose geometry)."""
+
+    root: float
+    hips: tuple[int, int] | None  # reference nodes of the two hips
+    centre_ref: np.ndarray  # (3,) zero-pose pelvis centre, reference root frame
+    centre_tgt: np.ndarray  # (3,) the same for the target
+    shoulders: tuple[int, int] | None
+    trunk_ref: np.ndarray  # (3, 3) zero-pose trunk frame of the reference (columns)
+    trunk_len_ref: float
+    trunk_tgt: np.ndarray  # (3,) target's zero-pose pelvis-centre → shoulder-centre vector
+    width: dict[int, float]  # hip / shoulder node → ratio of its distance from its centre
+    segments: tuple[tuple[int, int, float], ...]  # (parent key node, key node, ratio) in chain order
+    rigid: dict[int, np.ndarray]  # key node → target's zero-pose vector from its chain parent
+    others: tuple[tuple[int, int, float], ...]  # (anchor node, node, ratio) for the non-key nodes
+
+
+def _frame(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) orthonormal frame, columns (u, v ⟂ u, u × v) from (..., 3) vectors."""
+    e1 = u / np.maximum(np.linalg.norm(u, axis=-1, keepdims=True), 1e-12)
+    v = v - (v * e1).sum(-1, keepdims=True) * e1
+    e2 = v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
+    return np.stack([e1, e2, np.cross(e1, e2)], axis=-1)
+
+
+def _ratio(a: float, b: float, fallback: float) -> float:
+    return a / b if b > 1e-6 and a > 1e-6 else fallback
+
+
+def segment_ratios(ref: Skeleton, target: Skeleton) -> dict[str, float]:
+    """Per key point of the reference, the factor its segment (from its chain parent) is scaled by,
+    plus ``"root"``; see the module docstring."""
+    plan = _segment_plan(ref, target)
+    names = {v: k for k, v in ref.keypoints.items() if v >= 0}
+    out = {ROOT_PART: plan.root}
+    out.update({names[n]: r for n, r in plan.width.items()})
+    out.update({names[n]: r for _, n, r in plan.segments})
+    return out
+
+
+def _segment_plan(ref: Skeleton, target: Skeleton, root: float | None = None) -> _SegmentPlan:
+    kr, kt = ref.keypoints, target.keypoints
+    rr, rt = ref.rest_positions, target.rest_positions
+    parts = body_part_scales(ref, target) if root is None else {}
+    part_of = {k: p.name for p in ref.body_parts for k in p.keypoints}
+
+    def both(names):
+        return all(kr.get(k, -1) >= 0 for k in names)
+
+    def tgt_both(names):
+        return all(kt.get(k, -1) >= 0 for k in names)
+
+    hipn = ("left_hip", "right_hip")
+    hips = (kr[hipn[0]], kr[hipn[1]]) if both(hipn) else None
+    centre_ref = rr[list(hips)].mean(0) if hips else np.zeros(3)
+    centre_tgt = rt[[kt[k] for k in hipn]].mean(0) if hips and tgt_both(hipn) else np.zeros(3)
+    width: dict[int, float] = {}
+    if hips:
+        for k, n in zip(hipn, hips):
+            t = kt.get(k, -1)
+            width[n] = _ratio(np.linalg.norm(rt[t] - centre_tgt), np.linalg.norm(rr[n] - centre_ref), 1.0) if t >= 0 else 1.0
+    shn = ("left_shoulder", "right_shoulder")
+    shoulders = (kr[shn[0]], kr[shn[1]]) if both(shn) else None
+    trunk_ref, trunk_len, trunk_tgt = np.eye(3), 1.0, np.zeros(3)
+    if shoulders:
+        s_r = rr[list(shoulders)].mean(0)
+        trunk_ref = _frame(s_r - centre_ref, rr[shoulders[0]] - rr[shoulders[1]])
+        trunk_len = max(float(np.linalg.norm(s_r - centre_ref)), 1e-6)
+        s_t = rt[[kt[k] for k in shn]].mean(0) if tgt_both(shn) else s_r - centre_ref + centre_tgt
+        trunk_tgt = s_t - centre_tgt
+        for k, n in zip(shn, shoulders):
+            t = kt.get(k, -1)
+            width[n] = _ratio(np.linalg.norm(rt[t] - s_t), np.linalg.norm(rr[n] - s_r), 1.0) if t >= 0 else 1.0
+    segments, rigid = [], {}
+    for start, chain in _CHAINS:
+        prev = kr.get(start, -1)
+        prev_name = start
+        if prev < 0:
+            continue
+        for k in chain:
+            n = kr.get(k, -1)
+            if n < 0:
+                continue
+            a, b = kt.get(prev_name, -1), kt.get(k, -1)
+            fallback = parts.get(part_of.get(k, ""), parts.get(ROOT_PART, 1.0)) if parts else 1.0
+            r = _ratio(np.linalg.norm(rt[b] - rt[a]), np.linalg.norm(rr[n] - rr[prev]), fallback) if a >= 0 and b >= 0 else fallback
+            segments.append((prev, n, r))
+            if a >= 0 and b >= 0 and _rigid(ref, prev, n):
+                rigid[n] = rt[b] - rt[a]
+            prev, prev_name = n, k
+    keyed = {0, *width, *(n for _, n, _ in segments)}
+    ratio_at = {0: 1.0, **width, **{n: r for _, n, r in segments}}
+    others = []
+    for n in range(1, ref.num_nodes):
+        if n in keyed:
+            continue
+        a = int(ref.parents[n])
+        while a not in keyed:
+            a = int(ref.parents[a])
+        others.append((a, n, ratio_at[a]))
+    plan = _SegmentPlan(1.0, hips, centre_ref, centre_tgt, shoulders, trunk_ref, trunk_len, trunk_tgt, width,
+                        tuple(segments), rigid, tuple(others))  # fmt: skip
+    if root is None:
+        ref_stand = _standing(ref)
+        centre_h = float(ref_stand[list(hips), 2].mean()) if hips else float(ref_stand[0, 2])
+        tgt_stand = _standing(target)
+        tgt_h = float(tgt_stand[[kt[k] for k in hipn], 2].mean()) if hips and tgt_both(hipn) else float(tgt_stand[0, 2])
+        default = tgt_h / centre_h if centre_h > 1e-6 and tgt_h > 1e-6 else 1.0
+        eye = np.broadcast_to(np.eye(3), (ref.num_nodes, 3, 3))
+        root = _feet_root_scale(
+            ref, target, lambda p, a: _apply_segments(p, eye, _replace_root(plan, a), None), centre_h, default
+        )
+    return _replace_root(plan, root)
+
+
+def _rigid(skel: Skeleton, a: int, b: int) -> bool:
+    """True if ``b`` hangs off ``a`` through fixed nodes only (no joint turns between them)."""
+    n = b
+    while n != a and n > 0:
+        if skel.node_kinds[n] == "revolute":
+            return False
+        n = int(skel.parents[n])
+    return n == a
+
+
+def _replace_root(plan: _SegmentPlan, root: float) -> _SegmentPlan:
+    from dataclasses import replace
+
+    return replace(plan, root=float(root))
+
+
+def _apply_segments(positions: np.ndarray, rotations: np.ndarray, plan: _SegmentPlan, origin_xy) -> np.ndarray:
+    P = positions
+    base_rot = rotations[..., 0, :, :]
+    out = np.empty_like(P)
+    c = P[..., list(plan.hips), :].mean(-2) if plan.hips else P[..., 0, :]
+    c_s = _scale_about_origin(c, plan.root, origin_xy)
+    shift = np.einsum("...ij,j->...i", base_rot, plan.centre_tgt - plan.centre_ref)
+    out[..., 0, :] = c_s + (P[..., 0, :] - c) - shift
+    if plan.hips:
+        for n in plan.hips:
+            out[..., n, :] = c_s + plan.width[n] * (P[..., n, :] - c)
+    if plan.shoulders:
+        l, r = plan.shoulders
+        s = 0.5 * (P[..., l, :] + P[..., r, :])
+        u = s - c
+        frame = _frame(u, P[..., l, :] - P[..., r, :])
+        turn = frame @ plan.trunk_ref.T
+        stretch = np.linalg.norm(u, axis=-1, keepdims=True) / plan.trunk_len_ref
+        s_s = c_s + stretch * np.einsum("...ij,j->...i", turn, plan.trunk_tgt)
+        for n in plan.shoulders:
+            out[..., n, :] = s_s + plan.width[n] * (P[..., n, :] - s)
+    for a, n, r in plan.segments:
+        if n in plan.rigid:
+            out[..., n, :] = out[..., a, :] + np.einsum("...ij,j->...i", rotations[..., a, :, :], plan.rigid[n])
+        else:
+            out[..., n, :] = out[..., a, :] + r * (P[..., n, :] - P[..., a, :])
+    for a, n, r in plan.others:  # nodes hanging off the base (waist, torso) scale with the root
+        out[..., n, :] = out[..., a, :] + (plan.root if a == 0 else r) * (P[..., n, :] - P[..., a, :])
+    return out
+
+
+# ---- public entry points ------------------------------------------------------------------------
+def scale_reference_positions(
+    positions: np.ndarray,
+    ref: Skeleton,
+    target: Skeleton,
+    *,
+    rotations: np.ndarray | None = None,
+    origin_xy: np.ndarray | None = None,
+    method: ScalingMethod = "segments",
+    scales: dict[str, float] | None = None,
+) -> np.ndarray:
+    """Scale reference node positions to the target's size (see the module docstring).
+
+    Args:
+        positions: (..., J_ref, 3) world positions of the reference nodes [m].
+        rotations: (..., J_ref, 3, 3) world rotations of the reference nodes (FK); ``segments``
+            places the target's base by the reference base's and turns rigid segments by their
+            body's (identity when omitted: right for the zero pose standing upright).
+        origin_xy: (..., 2) point the pelvis trajectory is scaled about (default: the origin, as in
+            origin-normalized windows); heights are scaled about the ground z = 0.
+        method: ``segments`` (default) or the paper's ``parts``.
+        scales: ``parts`` only: precomputed :func:`body_part_scales`.
+
+    Returns:
+        (..., J_ref, 3) scaled positions [m].
+    """
+    positions = np.asarray(positions, dtype=np.float64)
+    if method == "parts":
+        return _scale_parts(positions, ref, scales or body_part_scales(ref, target), origin_xy)
+    if method != "segments":
+        raise ValueError(f"unknown scaling method {method!r}; known: {', '.join(SCALING_METHODS)}")
+    rot = np.broadcast_to(np.eye(3), positions.shape + (3,)) if rotations is None else np.asarray(rotations, np.float64)
+    return _apply_segments(positions, rot, _segment_plan(ref, target), origin_xy)
+
+
+def _min_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(3, 3) the smallest rotation taking direction ``a`` onto direction ``b``."""
+    a = a / np.linalg.norm(a)
+    b = b / np.linalg.norm(b)
+    v, c = np.cross(a, b), float(a @ b)
+    if c < -1 + 1e-9:  # opposite: half turn about any axis perpendicular to a
+        p = np.cross(a, [1.0, 0, 0]) if abs(a[0]) < 0.9 else np.cross(a, [0, 1.0, 0])
+        p /= np.linalg.norm(p)
+        return 2 * np.outer(p, p) - np.eye(3)
+    k = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    return np.eye(3) + k + k @ k / (1 + c)
+
+
+def orientation_calibration(ref: Skeleton, target: Skeleton) -> dict[str, np.ndarray]:
+    """Key point (``"base"`` and :data:`ORIENTED_KEYPOINTS` both robots have) → (3, 3) ``C``.
+
+    The target's goal orientation of that body is ``R_ref(t) @ C``: identity for the base and the
+    feet (every robot's zero pose stands upright on flat feet); for a hand, the smallest rotation
+    taking the target's zero-pose forearm (elbow → hand; shoulder → hand without an elbow) onto
+    the reference's. A target hand fixed to its forearm (no wrist joint, H1) is not tracked: the
+    elbow and hand positions already set its orientation, and a goal would only fight them.
+    """
+    out = {"base": np.eye(3)}
+    rr, rt = ref.rest_positions, target.rest_positions
+    for k in ORIENTED_KEYPOINTS:
+        if ref.keypoints.get(k, -1) < 0 or target.keypoints.get(k, -1) < 0:
+            continue
+        c = np.eye(3)
+        if k.endswith("hand"):
+            side = k.split("_")[0]
+            elbow = target.keypoints.get(f"{side}_elbow", -1)
+            if elbow >= 0 and _rigid(target, elbow, target.keypoints[k]):
+                continue  # no wrist (H1): the hand turns with the forearm, whose direction the positions set
+            for start in (f"{side}_elbow", f"{side}_shoulder"):
+                a_r, a_t = ref.keypoints.get(start, -1), target.keypoints.get(start, -1)
+                if a_r >= 0 and a_t >= 0:
+                    d_r = rr[ref.keypoints[k]] - rr[a_r]
+                    d_t = rt[target.keypoints[k]] - rt[a_t]
+                    if np.linalg.norm(d_r) > 1e-6 and np.linalg.norm(d_t) > 1e-6:
+                        c = _min_rotation(d_t, d_r)
+                    break
+        out[k] = c
+    return out
+
+
+def orientation_goals(ref_rot: np.ndarray, ref: Skeleton, target: Skeleton) -> tuple[np.ndarray, np.ndarray]:
+    """Orientation goals of the reference's nodes for ``target``.
+
+    Args:
+        ref_rot: (..., J_ref, 3, 3) world rotations of the reference nodes (FK; each node frame is
+            the root frame at the zero pose).
+
+    Returns:
+        goals (..., J_ref, 3, 3) (``R_ref @ C``, see :func:`orientation_calibration`; the identity
+        where not tracked) and mask (J_ref,) bool: the nodes whose orientation is tracked.
+    """
+    ref_rot = np.asarray(ref_rot, np.float64)
+    goals = np.broadcast_to(np.eye(3), ref_rot.shape).copy()
+    mask = np.zeros(ref.num_nodes, bool)
+    for k, c in orientation_calibration(ref, target).items():
+        n = 0 if k == "base" else ref.keypoints[k]
+        goals[..., n, :, :] = ref_rot[..., n, :, :] @ c
+        mask[n] = True
+    return goals, mask

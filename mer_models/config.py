@@ -95,6 +95,9 @@ class EnergyConfig:
     Attributes:
         w_kp, w_cst, w_vel, w_norm: the paper's ``w0 .. w3``.
         lam: ``lambda``, the energy's weight against the EDM denoising term.
+        w_ori: weight of the orientation term ``L_ori`` (base, feet, hands) [m^2 / rad^2]: at
+            0.003, 0.1 rad of orientation error costs as much as 5.5 mm of key-point error
+            (docs/model.md). Checkpoints written before the term existed load with 0.
     """
 
     w_kp: float = 1.0
@@ -102,6 +105,7 @@ class EnergyConfig:
     w_vel: float = 0.01
     w_norm: float = 1e-3
     lam: float = 10.0
+    w_ori: float = 0.003
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -214,12 +218,16 @@ def preset(name: str) -> RunConfig:
 
 
 _SECTIONS = {"model": ModelConfig, "energy": EnergyConfig, "sampler": SamplerConfig, "train": TrainConfig}
+#: Fields added after checkpoints were first written, with the value that reproduces the older
+#: behaviour: a checkpoint without them loads with that value (and nothing else may be missing).
+_LEGACY = {EnergyConfig: {"w_ori": 0.0}}
 
 
 def _section(cls, data: Any, where: str):
     if not isinstance(data, Mapping):
         raise ConfigError(f"section {where!r} must be a JSON object", element=where)
     names = {f.name for f in dataclasses.fields(cls)}
+    data = {**_LEGACY.get(cls, {}), **data}
     unknown = sorted(set(data) - names)
     missing = sorted(names - set(data))
     if unknown:

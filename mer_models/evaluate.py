@@ -51,7 +51,8 @@ class EvalOptions:
         steps, guidance: sampler overrides (None: the checkpoint's).
         batch_size: windows per forward pass.
         seed: sampling noise.
-        opt_iters, opt_gn_iters: the optimisation baseline's Adam and Levenberg-Marquardt iterations.
+        opt_iters, opt_gn_iters: the optimiser's Adam and (most) Levenberg-Marquardt iterations.
+        scaling: how the reference is scaled to the target (:mod:`mer_data.scaling`).
     """
 
     split: str = "paper"
@@ -65,6 +66,7 @@ class EvalOptions:
     seed: int = 0
     opt_iters: int = DEFAULT_ITERS
     opt_gn_iters: int = DEFAULT_GN_ITERS
+    scaling: str = "segments"
 
 
 def _clip_files(folder: Path) -> dict[str, Path]:
@@ -171,7 +173,8 @@ def evaluate(
         for t in targets:
             check_robot(checkpoint, t, "targets")
         check_robot(checkpoint, source, "references")
-    energy = energy or (checkpoint.run.energy if checkpoint is not None else EnergyConfig())
+    model_energy = energy or (checkpoint.run.energy if checkpoint is not None else EnergyConfig())
+    opt_energy = energy or EnergyConfig()
     windows = collect_windows(input_dir, source, opts)
     ref = get_skeleton(source)
     rows = []
@@ -191,15 +194,15 @@ def evaluate(
                         TrainingSample(x["reference"], ref, tgt, eta, gt, {"clip": x["clip"], "start": x["start"]})
                         for x, gt in zip(w[a : a + opts.batch_size], gts[a : a + opts.batch_size])
                     ]
-                    batch = collate(samples)
+                    batch = collate(samples, scaling=opts.scaling)
                     if method == "model":
                         run = checkpoint.run
                         sampler = run.sampler if opts.guidance is None else SamplerConfig(**{**run.sampler.__dict__, "guidance": float(opts.guidance)})
                         gen = torch.Generator().manual_seed(opts.seed + a)
-                        motion = sample_batch(checkpoint.model, batch, sampler, energy=energy, steps=opts.steps, generator=gen)
+                        motion = sample_batch(checkpoint.model, batch, sampler, energy=model_energy, steps=opts.steps, generator=gen)
                     else:
-                        motion = optimize_batch(energy, batch, iters=opts.opt_iters, gn_iters=opts.opt_gn_iters)
-                    for k, v in window_metrics(motion, batch).items():
+                        motion = optimize_batch(opt_energy, batch, iters=opts.opt_iters, gn_iters=opts.opt_gn_iters)
+                    for k, v in window_metrics(motion, batch, keypoints={"base": 0, **tgt.keypoints}).items():
                         vals.setdefault(k, []).append(v)
                 summary = summarize({k: np.concatenate(v) for k, v in vals.items()})
                 row = {"robot": target, "domain": dom, "method": method, "windows": len(w), "seconds": round(time.time() - t0, 2), "metrics": summary}
@@ -215,7 +218,7 @@ def evaluate(
     }
 
 
-_COLS = (("g_mpbpe", "E_g-mpbpe [m]"), ("mpboe", "E_mpboe [rad]"), ("mpbve", "E_mpbve [m/s]"), ("jerk", "E_smooth [rad/s^3]"), ("limit_violation", "limits"))
+_COLS = (("g_mpbpe", "E_g-mpbpe [m]"), ("mpboe", "E_mpboe [rad]"), ("mpbve", "E_mpbve [m/s]"), ("jerk_frame", "E_smooth [rad/fr^3]"), ("limit_violation", "limits"))
 _GT_COLS = (("gt_mpbpe", "vs data: pos [m]"), ("gt_mpboe", "orient [rad]"), ("gt_mpbve", "vel [m/s]"))
 
 

@@ -83,11 +83,19 @@ def optimize_batch(
     iters: int = DEFAULT_ITERS,
     gn_iters: int = DEFAULT_GN_ITERS,
     device: str | torch.device = "cpu",
+    init: Mapping[str, torch.Tensor] | None = None,
 ) -> dict[str, torch.Tensor]:
-    """The optimisation baseline on a collated batch, in the batch's frame (no model needed)."""
+    """The optimiser on a collated batch, in the batch's frame (no model needed).
+
+    ``init`` warm-starts it (``q``, ``base_pos``, ``base_rot``: e.g. a model's output to refine).
+    """
     g = graph_from_batch(batch, "tgt", device)
     goal = batch["ref_scaled_pos"].to(device, torch.float32)
     ref_rot = axis_angle_to_matrix(batch["reference"][:, :, 0, 0:3].to(device, torch.float32))
-    out = optimize_motion(energy, g, batch["joint_map"].to(device, torch.float32), goal, ref_rot, iters=iters, gn_iters=gn_iters)
+    rkw = {}
+    if "ref_goal_rot" in batch:
+        rkw = {"goal_rot": batch["ref_goal_rot"].to(device, torch.float32), "rot_mask": batch["ref_rot_mask"].to(device)}
+    out = optimize_motion(energy, g, batch["joint_map"].to(device, torch.float32), goal, ref_rot, iters=iters, gn_iters=gn_iters,
+                          init=init, **rkw)  # fmt: skip
     return {"q": out["q"], "base_pos": out["base_pos"], "base_rot": out["base_rot"], "energy": out["energy"]}
 

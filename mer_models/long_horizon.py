@@ -23,8 +23,7 @@ import numpy as np
 import torch
 
 from mer_data.jointmap import joint_map
-from mer_data.samples import TrainingSample, collate
-from mer_data.scaling import scale_reference_positions
+from mer_data.samples import TrainingSample, collate, reference_goals
 from mer_data.skeleton import Skeleton
 
 from .config import EnergyConfig, SamplerConfig
@@ -55,18 +54,21 @@ def _positions(feats: np.ndarray) -> np.ndarray:
     return np.concatenate([feats[:, :1, 3:6], feats[:, 1:, 1:4]], axis=1)
 
 
-def prepare_reference(reference: np.ndarray, ref: Skeleton, target: Skeleton) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def prepare_reference(
+    reference: np.ndarray, ref: Skeleton, target: Skeleton
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
     """Move a whole motion's features (N, Jr, 9) so its first base x, y is at the origin.
 
-    Returns the shifted features, the body-part-scaled node positions (N, Jr, 3) and the shift
-    (3,) that was subtracted.
+    Returns the shifted features, the node positions scaled to the target (N, Jr, 3), the shift
+    (3,) that was subtracted, and the orientation goals ((N, Jr, 3, 3), mask (Jr,))
+    (:func:`mer_data.samples.reference_goals`).
     """
     feats = np.asarray(reference, np.float64).copy()
     shift = np.array([feats[0, 0, 3], feats[0, 0, 4], 0.0])
     feats[:, 0, 3:6] -= shift
     feats[:, 1:, 1:4] -= shift
-    scaled = scale_reference_positions(_positions(feats), ref, target)
-    return feats, scaled, shift
+    scaled, goal_rot, rot_mask = reference_goals(feats, ref, target)
+    return feats, scaled, shift, (goal_rot, rot_mask)
 
 
 def _window_batch(ref_feats: np.ndarray, scaled: np.ndarray, ref: Skeleton, target: Skeleton, eta: np.ndarray) -> dict:
@@ -109,7 +111,7 @@ def retarget_sequence(
     if n < 1:
         raise ValueError("the motion has no frames")
     eta = joint_map(target, ref) if eta is None else eta
-    feats, scaled, shift = prepare_reference(reference, ref, target)
+    feats, scaled, shift, _ = prepare_reference(reference, ref, target)
     pad = max(0, frames - n)
     if pad:
         feats = np.concatenate([feats, np.repeat(feats[-1:], pad, 0)])

@@ -13,15 +13,16 @@ Per window (then averaged over windows, reported as mean ± std):
 * ``g_mpbpe`` [m]: mean over frames and bodies of ``|| p_i - p*_j ||`` (global positions, no root
   alignment).
 * ``mpbve`` [m/s]: the same on velocities (second-order finite differences at the frame rate).
-* ``mpboe`` [rad]: mean geodesic angle between the target node frame and the reference node frame
-  of each pair. Node frames are aligned with the root at each robot's zero pose, so this is the
-  difference between how far each body has turned from its zero pose (rest poses differ between
-  robots: it is a consistency measure, not an error that can reach 0 across morphologies).
+* ``mpboe`` [rad]: mean geodesic angle between the target's body orientation and its goal, over
+  the bodies whose orientation the energy tracks (base, feet, hands:
+  :func:`mer_data.scaling.orientation_goals`): how far each has turned from its robot's zero pose,
+  compared with the reference's, hands calibrated for differing rest poses of the arms.
 * ``jerk`` [rad/s^3]: mean over frames and actuated joints of ``|d^3 q / dt^3|`` (third forward
   difference times fps^3). ``jerk_frame`` is the same in rad/frame^3 (without fps^3), the scale of
   the paper's ``E_smooth`` values.
 * ``limit_violation`` [fraction]: frames in which any actuated joint is outside its limits by more
   than 1e-6 rad.
+* ``kp/<name>`` [m] (with ``keypoints=``): the position error of each key point (and ``kp/base``).
 
 When the target robot has its own motion for the window (G1 and H1 share LAFAN1 clips), the same
 position, velocity and orientation errors against *that* motion over all of its nodes are added as
@@ -38,7 +39,7 @@ import torch
 from mer_data.features import finite_difference
 from mer_data.rotations import rotation_angle_between
 
-from .energy import split_motion
+from .energy import orientation_pairs, split_motion
 from .kinematics import BatchGraph, batch_fk, graph_from_batch
 
 __all__ = ["METRICS", "GT_METRICS", "window_metrics", "summarize", "LIMIT_TOL"]
@@ -59,38 +60,45 @@ def _pair_index(eta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     return eta.argmax(-1), eta.sum(-1) > 0
 
 
-def window_metrics(motion: Mapping[str, torch.Tensor], batch: Mapping, fps: float = 30.0) -> dict[str, np.ndarray]:
+def window_metrics(
+    motion: Mapping[str, torch.Tensor], batch: Mapping, fps: float = 30.0, keypoints: Mapping[str, int] | None = None
+) -> dict[str, np.ndarray]:
     """Metrics of retargeted windows.
 
     Args:
         motion: ``q`` (B, T, Jt), ``base_pos`` (B, T, 3), ``base_rot`` (B, T, 3, 3), in the frame of
             the batch's ``ref_scaled_pos``.
         batch: the collated batch the motion was retargeted from.
+        keypoints: key point name → target node (one target robot for the whole batch) to add
+            the per-key-point errors ``kp/<name>``.
 
     Returns:
         name → (B,) float64 per window (``gt_*`` are NaN where the batch has no target motion).
     """
     dt = torch.float64
     tg = _as(graph_from_batch(batch, "tgt"), dt)
-    rg = _as(graph_from_batch(batch, "ref"), dt)
     q, bp, br = (motion[k].to(dt).cpu() for k in ("q", "base_pos", "base_rot"))
     pos, rot = batch_fk(tg, q, bp, br)
-    ref = batch["reference"].to(dt)
-    rq, rbp, rbr = split_motion(ref)
-    _, ref_rot = batch_fk(rg, rq, rbp, rbr)
     goal = batch["ref_scaled_pos"].to(dt)
     eta = batch["joint_map"].to(dt)
     j_of, pairs = _pair_index(eta)
     pairs = pairs & tg.mask
     B, T, Jt = q.shape
     g = torch.gather(goal, 2, j_of[:, None, :, None].expand(B, T, Jt, 3))
-    gr = torch.gather(ref_rot, 2, j_of[:, None, :, None, None].expand(B, T, Jt, 3, 3))
     vel, gvel = finite_difference(pos, fps, dim=-3), finite_difference(g, fps, dim=-3)
+    err = (pos - g).norm(dim=-1)
     out = {
-        "g_mpbpe": _mean((pos - g).norm(dim=-1), pairs),
+        "g_mpbpe": _mean(err, pairs),
         "mpbve": _mean((vel - gvel).norm(dim=-1), pairs),
-        "mpboe": _mean(rotation_angle_between(rot, gr), pairs),
     }
+    if "ref_goal_rot" in batch:
+        gr, opairs = orientation_pairs(eta, batch["ref_goal_rot"].to(dt), batch["ref_rot_mask"])
+        out["mpboe"] = _mean(rotation_angle_between(rot, gr), opairs & tg.mask)
+    else:
+        out["mpboe"] = torch.full((B,), float("nan"), dtype=dt)
+    for name, i in (keypoints or {}).items():
+        if i >= 0:
+            out[f"kp/{name}"] = torch.where(pairs[:, i], err[:, :, i].mean(1), torch.full((B,), float("nan"), dtype=dt))
     dof = tg.dof
     if T >= 4:
         d3 = (q[:, 3:] - 3 * q[:, 2:-1] + 3 * q[:, 1:-2] - q[:, :-3]).abs()

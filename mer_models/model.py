@@ -51,6 +51,8 @@ class Conditions:
         rot: (B, 3, 3) canonical ← world rotation; origin: (B, 3) world point at the canonical origin
             (the scaled reference's first base position on the ground).
         fps: frame rate [Hz].
+        goal_rot: (B, T, Jr, 3, 3) orientation goals, canonical frame, and rot_mask (B, Jr) the
+            reference nodes that carry one (None: no orientation term).
         ref_tokens: the encoded reference (filled on first use, reused by every denoising step).
     """
 
@@ -62,6 +64,8 @@ class Conditions:
     rot: torch.Tensor
     origin: torch.Tensor
     fps: float = 30.0
+    goal_rot: torch.Tensor | None = None
+    rot_mask: torch.Tensor | None = None
     ref_tokens: torch.Tensor | None = None
 
     @property
@@ -89,6 +93,10 @@ class RetargetModel(nn.Module):
         scaled = batch["ref_scaled_pos"].to(dev, torch.float32)
         origin = scaled[:, 0, 0].clone()
         origin[:, 2] = 0
+        goal_rot = rot_mask = None
+        if "ref_goal_rot" in batch:
+            goal_rot = rot[:, None, None] @ batch["ref_goal_rot"].to(dev, torch.float32)
+            rot_mask = batch["ref_rot_mask"].to(dev)
         return Conditions(
             reference=normalize(ref_c, self.cfg) * batch["ref_mask"].to(dev)[:, None, :, None],
             ref_graph=graph_from_batch(batch, "ref", dev),
@@ -98,6 +106,8 @@ class RetargetModel(nn.Module):
             rot=rot,
             origin=origin,
             fps=fps,
+            goal_rot=goal_rot,
+            rot_mask=rot_mask,
         )
 
     def target_sample(self, target: torch.Tensor, cond: Conditions) -> torch.Tensor:
@@ -134,7 +144,7 @@ class RetargetModel(nn.Module):
 
     def energy(self, d: torch.Tensor, cond: Conditions, ecfg: EnergyConfig) -> dict[str, torch.Tensor]:
         """``f_kin`` terms of a denoised sample (B,) each (:func:`mer_models.energy.f_kin`)."""
-        return f_kin(ecfg, cond.tgt_graph, self.physical(d), cond.eta, cond.goal, cond.fps)
+        return f_kin(ecfg, cond.tgt_graph, self.physical(d), cond.eta, cond.goal, cond.fps, cond.goal_rot, cond.rot_mask)
 
     def decode(self, d: torch.Tensor, cond: Conditions) -> dict[str, torch.Tensor]:
         """A denoised sample → world motion.

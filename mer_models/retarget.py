@@ -86,7 +86,7 @@ def _reference_points(scaled: np.ndarray, shift: np.ndarray, eta: np.ndarray) ->
     return scaled[:, pairs] + shift
 
 
-def _optimize_sequence(feats, scaled, ref: Skeleton, target: Skeleton, eta, energy: EnergyConfig, fps, iters, gn_iters, device):
+def _optimize_sequence(feats, scaled, rot_goals, ref: Skeleton, target: Skeleton, eta, energy: EnergyConfig, fps, iters, gn_iters, device):
     from mer_data.samples import TrainingSample, collate
 
     batch = collate([TrainingSample(feats[:3].astype(np.float32), ref, target, eta)])
@@ -94,7 +94,9 @@ def _optimize_sequence(feats, scaled, ref: Skeleton, target: Skeleton, eta, ener
     goal = torch.from_numpy(scaled).float()[None].to(device)
     rot = axis_angle_to_matrix(torch.from_numpy(feats[:, 0, 0:3]).float())[None].to(device)
     eta_t = torch.from_numpy(eta.astype(np.float32))[None].to(device)
-    out = optimize_motion(energy, g, eta_t, goal, rot, iters=iters, gn_iters=gn_iters, fps=fps)
+    goal_rot = torch.from_numpy(rot_goals[0]).float()[None].to(device)
+    rot_mask = torch.from_numpy(rot_goals[1])[None].to(device)
+    out = optimize_motion(energy, g, eta_t, goal, rot, iters=iters, gn_iters=gn_iters, fps=fps, goal_rot=goal_rot, rot_mask=rot_mask)
     return {k: out[k][0].double().cpu().numpy() for k in ("q", "base_pos", "base_rot")}
 
 
@@ -130,7 +132,7 @@ def retarget_features(
         raise MerError(f"source features have shape {reference.shape}, expected (F, {ref.num_nodes}, 9) for {ref.name!r}")
     _check_finite(reference)
     eta = joint_map(tgt, ref)
-    feats, scaled, shift = prepare_reference(reference, ref, tgt)
+    feats, scaled, shift, rot_goals = prepare_reference(reference, ref, tgt)
     if method == "diffusion":
         if checkpoint is None:
             raise MerError("the diffusion method needs a model", fix="pass --model PATH, or use --method optimize")
@@ -145,8 +147,7 @@ def retarget_features(
         )  # fmt: skip
     else:
         device = next(checkpoint.model.parameters()).device if checkpoint is not None else torch.device("cpu")
-        energy = energy or (checkpoint.run.energy if checkpoint is not None else EnergyConfig())
-        out = _optimize_sequence(feats, scaled, ref, tgt, eta, energy, fps, opt_iters, opt_gn_iters, device)
+        out = _optimize_sequence(feats, scaled, rot_goals, ref, tgt, eta, energy or EnergyConfig(), fps, opt_iters, opt_gn_iters, device)
         out["base_pos"] = out["base_pos"] + shift
     motion = TargetMotion(tgt, fps, out["q"], out["base_pos"], out["base_rot"])
     return RetargetResult(motion, _reference_points(scaled, shift, eta), method)
@@ -215,7 +216,7 @@ def sequence_metrics(reference: np.ndarray, source: Skeleton, motion: TargetMoti
     from .metrics import window_metrics
 
     tgt = motion.skeleton
-    feats, scaled, shift = prepare_reference(reference, source, tgt)
+    feats, scaled, shift, _ = prepare_reference(reference, source, tgt)
     batch = collate([TrainingSample(feats.astype(np.float32), source, tgt, joint_map(tgt, source))])
     batch["ref_scaled_pos"] = torch.from_numpy(scaled)[None]
     out = {"q": torch.from_numpy(np.asarray(motion.q))[None], "base_pos": torch.from_numpy(np.asarray(motion.base_pos) - shift)[None],

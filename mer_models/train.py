@@ -114,6 +114,8 @@ def clean_samples(model: RetargetModel, batch: Mapping, cond: Conditions, run: R
             out = optimize_motion(
                 run.energy, g, cond.eta[sel], cond.goal[sel], axis_angle_to_matrix(ref[:, :, 0, 0:3]),
                 iters=0, gn_iters=run.train.opt_iters, fps=cond.fps,
+                goal_rot=None if cond.goal_rot is None else cond.goal_rot[sel],
+                rot_mask=None if cond.rot_mask is None else cond.rot_mask[sel],
             )
             feats = batch_features(g, out["q"], out["base_pos"], out["base_rot"], cond.fps)
             eye = torch.eye(3, device=feats.device).expand(len(sel), 3, 3)

@@ -1,0 +1,193 @@
+"""The goals the energy tracks (segment scaling, orientation goals) and the optimiser on them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from mer_data.fk import fk_skeleton, skeleton_tensors
+from mer_data.jointmap import joint_map
+from mer_data.registry import get_skeleton
+from mer_data.rotations import axis_angle_to_matrix, rotation_angle_between
+from mer_data.samples import TrainingSample, collate
+from mer_data.scaling import (
+    ORIENTED_KEYPOINTS,
+    orientation_calibration,
+    orientation_goals,
+    scale_reference_positions,
+    segment_ratios,
+)
+from mer_models.config import EnergyConfig, from_dict, preset
+from mer_models.energy import energy_terms
+from mer_models.kinematics import graph_from_batch
+from mer_models.metrics import window_metrics
+from mer_models.optimize import optimize_motion
+
+from conftest import ROBOTS
+from model_helpers import mixed_batch, synthetic_window
+
+
+def _random_motion(skel, n, seed):
+    """FK of ``n`` random in-limit configurations and base poses: positions, rotations (n, J, ...)."""
+    rng = np.random.default_rng(seed)
+    st_ = skeleton_tensors(skel, torch.float64)
+    q = torch.from_numpy(rng.uniform(skel.lower, skel.upper, (n, skel.num_nodes)))
+    bp = torch.from_numpy(rng.normal(size=(n, 3)))
+    br = axis_angle_to_matrix(torch.from_numpy(rng.normal(size=(n, 3))))
+    p, r = fk_skeleton(st_, q, bp, base_rot=br)
+    return p.numpy(), r.numpy()
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
+@settings(max_examples=5, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1))
+def test_a_robots_own_motion_scales_to_itself(robot, seed):
+    s = get_skeleton(robot)
+    p, r = _random_motion(s, 4, seed)
+    np.testing.assert_allclose(scale_reference_positions(p, s, s, rotations=r), p, atol=1e-12)
+    goals, mask = orientation_goals(r, s, s)
+    np.testing.assert_allclose(goals[:, mask], r[:, mask], atol=1e-12)
+
+
+def _segments(skel):
+    chains = (("left_hip", "left_knee", "left_ankle", "left_toe"), ("right_shoulder", "right_elbow", "right_hand"))
+    for chain in chains:
+        present = [k for k in chain if skel.keypoints.get(k, -1) >= 0]
+        yield from zip(present, present[1:])
+
+
+@pytest.mark.parametrize("target", ROBOTS)
+@pytest.mark.parametrize("source", ("g1", "h1", "atlas"))
+def test_scaled_segments_have_the_targets_lengths(source, target):
+    """At the zero pose every key-point segment of the scaled reference is the target's length."""
+    ref, tgt = get_skeleton(source), get_skeleton(target)
+    out = scale_reference_positions(ref.rest_positions, ref, tgt)
+    checked = 0
+    for a, b in _segments(ref):
+        if tgt.keypoints.get(a, -1) < 0 or tgt.keypoints.get(b, -1) < 0:
+            continue
+        want = np.linalg.norm(tgt.rest_positions[tgt.keypoints[b]] - tgt.rest_positions[tgt.keypoints[a]])
+        got = np.linalg.norm(out[ref.keypoints[b]] - out[ref.keypoints[a]])
+        assert got == pytest.approx(want, abs=1e-9), (a, b)
+        checked += 1
+    assert checked >= 3
+
+
+def test_the_base_goal_means_the_pelvis_on_every_robot():
+    """Talos' root link sits higher above its hips than G1's: its base goal must too."""
+    g1, talos = get_skeleton("g1"), get_skeleton("talos")
+    w = synthetic_window("g1", 30, 0)
+    b = collate([TrainingSample(w, g1, talos, joint_map(talos, g1))])
+    pos = b["ref_scaled_pos"][0].double()
+    hips = [g1.keypoints["left_hip"], g1.keypoints["right_hip"]]
+    up = pos[:, 0] - pos[:, hips].mean(1)  # scaled base relative to the scaled pelvis centre
+    r = talos.rest_positions
+    want = -(r[[talos.keypoints["left_hip"], talos.keypoints["right_hip"]]].mean(0))
+    rot = axis_angle_to_matrix(torch.from_numpy(w[:, 0, 0:3]).double())
+    hip_mid_ref = torch.from_numpy(w[:, hips, 1:4]).double().mean(1)
+    # per frame: the reference's base-to-pelvis vector, corrected by the rotated difference of pelvis offsets
+    ref_up = torch.from_numpy(w[:, 0, 3:6]).double() - hip_mid_ref
+    c_r = g1.rest_positions[hips].mean(0)
+    expect = ref_up + (rot @ torch.from_numpy(-want - c_r)[:, None])[..., 0] * -1
+    torch.testing.assert_close(up, expect, atol=1e-5, rtol=0)
+    assert float(up[:, 2].mean()) > float(ref_up[:, 2].mean()) + 0.1  # Talos' base is 0.27 m above its hips
+
+
+def test_paper_scaling_is_kept_for_comparison():
+    g1, h1 = get_skeleton("g1"), get_skeleton("h1")
+    p = g1.rest_positions[None]
+    parts = scale_reference_positions(p, g1, h1, method="parts")
+    segs = scale_reference_positions(p, g1, h1)
+    assert parts.shape == segs.shape and not np.allclose(parts, segs)
+    with pytest.raises(ValueError, match="unknown scaling method"):
+        scale_reference_positions(p, g1, h1, method="nope")
+    assert segment_ratios(g1, g1)["root"] == pytest.approx(1.0)
+
+
+def test_orientation_calibration():
+    g1, atlas, h1 = get_skeleton("g1"), get_skeleton("atlas"), get_skeleton("h1")
+    same = orientation_calibration(g1, g1)
+    assert set(same) == {"base", *ORIENTED_KEYPOINTS}
+    for c in same.values():
+        np.testing.assert_allclose(c, np.eye(3), atol=1e-12)
+    cal = orientation_calibration(g1, atlas)
+    c = cal["left_hand"]
+    np.testing.assert_allclose(c @ c.T, np.eye(3), atol=1e-12)
+    k = atlas.keypoints
+    d_t = atlas.rest_positions[k["left_hand"]] - atlas.rest_positions[k["left_elbow"]]
+    d_r = g1.rest_positions[g1.keypoints["left_hand"]] - g1.rest_positions[g1.keypoints["left_elbow"]]
+    np.testing.assert_allclose(c @ (d_t / np.linalg.norm(d_t)), d_r / np.linalg.norm(d_r), atol=1e-9)
+    assert "left_hand" not in orientation_calibration(g1, h1)  # H1 has no wrist: its hand is its forearm
+
+
+def test_orientation_term_is_zero_on_the_reference_and_positive_when_turned():
+    b = mixed_batch(("g1",))
+    g = graph_from_batch(b, "tgt")
+    from mer_models.energy import split_motion
+
+    q, bp, br = split_motion(b["target"])
+    kw = {"goal_rot": b["ref_goal_rot"], "rot_mask": b["ref_rot_mask"]}
+    cfg = EnergyConfig()
+    e = energy_terms(cfg, g, q, bp, br, b["joint_map"], b["ref_scaled_pos"], **kw)
+    assert float(e["ori"]) < 1e-9
+    turned = axis_angle_to_matrix(torch.tensor([0.0, 0.0, 0.3])) @ br
+    e2 = energy_terms(cfg, g, q, bp, turned, b["joint_map"], b["ref_scaled_pos"], **kw)
+    assert float(e2["ori"]) == pytest.approx(cfg.w_ori * 2 * (1 - np.cos(0.3)), rel=1e-3)  # every tracked body turned 0.3 rad
+    off = energy_terms(EnergyConfig(w_ori=0.0), g, q, bp, turned, b["joint_map"], b["ref_scaled_pos"], **kw)
+    assert float(off["ori"]) == 0.0
+
+
+def test_orientation_goals_turn_the_targets_feet_and_hands():
+    """With the orientation term, the optimiser's feet and hands follow the reference's turns."""
+    b = mixed_batch(("atlas",), frames=20)
+    g = graph_from_batch(b, "tgt")
+    rot = axis_angle_to_matrix(b["reference"][:, :, 0, 0:3])
+    kw = {"goal_rot": b["ref_goal_rot"], "rot_mask": b["ref_rot_mask"]}
+    res = {}
+    for w in (0.0, EnergyConfig().w_ori):
+        out = optimize_motion(EnergyConfig(w_ori=w), g, b["joint_map"], b["ref_scaled_pos"], rot, **kw)
+        res[w] = window_metrics(out, b)
+    on = res[EnergyConfig().w_ori]
+    assert on["mpboe"][0] < 0.7 * res[0.0]["mpboe"][0]
+    assert on["g_mpbpe"][0] < res[0.0]["g_mpbpe"][0] + 0.015  # at a small cost in position
+    assert on["limit_violation"][0] == 0
+
+
+def test_optimiser_tracks_its_own_robot_closely_and_smoothly():
+    b = mixed_batch(("g1",))
+    g = graph_from_batch(b, "tgt")
+    rot = axis_angle_to_matrix(b["reference"][:, :, 0, 0:3])
+    stats: dict = {}
+    out = optimize_motion(EnergyConfig(), g, b["joint_map"], b["ref_scaled_pos"], rot, goal_rot=b["ref_goal_rot"],
+                          rot_mask=b["ref_rot_mask"], stats=stats)  # fmt: skip
+    m = window_metrics(out, b, keypoints=get_skeleton("g1").keypoints)
+    assert m["g_mpbpe"][0] < 0.006 and m["mpboe"][0] < 0.05
+    assert m["kp/left_hand"][0] < 0.01
+    truth = b["target"][0, :, 1:, 0]
+    assert m["jerk_frame"][0] < 2 * float((truth[3:] - 3 * truth[2:-1] + 3 * truth[1:-2] - truth[:-3]).abs().mean()) + 1e-3
+    assert 1 <= stats["gn_iterations"] <= 30
+
+
+def test_checkpoints_written_before_the_orientation_term_load_without_it():
+    d = preset("tiny").to_dict()
+    del d["energy"]["w_ori"]
+    assert from_dict(d).energy.w_ori == 0.0
+    d["energy"]["w_kp_typo"] = 1.0
+    from mer_data.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="w_kp_typo"):
+        from_dict(d)
+
+
+def test_orientation_metric_is_the_angle_to_the_goal():
+    b = mixed_batch(("g1",), frames=10)
+    from mer_models.energy import split_motion
+
+    q, bp, br = split_motion(b["target"])
+    turned = axis_angle_to_matrix(torch.tensor([0.2, 0.0, 0.0])) @ br
+    m = window_metrics({"q": q, "base_pos": bp, "base_rot": turned}, b)
+    assert m["mpboe"][0] == pytest.approx(0.2, abs=1e-4)
+    assert float(rotation_angle_between(turned, br).mean()) == pytest.approx(0.2, abs=1e-5)
