@@ -21,6 +21,7 @@ import numpy as np
 from .atomic import atomic_write
 from .csv_numeric import parse_numeric_csv
 from .errors import MotionFormatError
+from .finite import require_finite
 from .plausibility import check_motion_arrays
 from .registry import Robot, load_robot
 from .safe_io import gunzip_limited, read_regular_file
@@ -242,6 +243,8 @@ def write_lafan1_csv(path: str | Path, motion: Motion, *, decimals: int = 6) -> 
     missing = [c for c in cols if c not in pos]
     if missing:
         raise MotionFormatError(f"the motion has no column for joints {missing}", path=path)
+    require_finite({"base_pos": motion.base_pos, "base_quat": motion.base_quat, "joints": motion.joints}, path=path,
+                   what="motion")  # fmt: skip
     q = motion.base_quat
     table = np.column_stack([motion.base_pos, q[:, 1:4], q[:, 0:1], motion.joints[:, [pos[c] for c in cols]]])
     lines = "\n".join(",".join(f"{v:.{decimals}f}" for v in row) for row in table) + "\n"

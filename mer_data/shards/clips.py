@@ -20,6 +20,7 @@ import torch
 
 from ..augment import LinkGroups, draw_dropped, draw_link_scales, link_groups
 from ..errors import MerError
+from ..finite import require_finite
 from ..fk import SkeletonTensors, skeleton_tensors
 from ..motion_io import decompress_motion, parse_lafan1, read_motion_file
 from ..registry import Robot, load_robot
@@ -171,6 +172,12 @@ def process_clip(ctx: BuildContext, task: ClipTask) -> ClipResult:
         return ClipResult(task, record, None)
     record["status"] = "ok"
     wb = make_windows(motion, ctx.skeleton(task.robot), starts, cfg.window, st=ctx.tensors(task.robot))
+    try:
+        require_finite({"pos": wb.pos, "q": wb.q, "base_rotvec": wb.base_rotvec, "origin_xy": wb.origin_xy},
+                       path=path, what="shard windows")  # fmt: skip
+    except MerError as exc:
+        record.update(status="failed", error=str(exc))
+        return ClipResult(task, record, None)
     n = len(wb)
     rows = {
         "pos": wb.pos, "q": wb.q, "base_rotvec": wb.base_rotvec, "origin_xy": wb.origin_xy,
