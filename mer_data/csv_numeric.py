@@ -22,12 +22,15 @@ import warnings
 import numpy as np
 
 from .errors import MotionFormatError
+from .limits import limit, too_big
 
 __all__ = ["parse_numeric_csv", "exact_parse"]
 
 _COMMA, _NL, _DOT, _MINUS = 44, 10, 46, 45
 _MAX_EXACT = 2**53
 _DROP_DOTS = bytes.maketrans(b"\n", b",")
+_BOM = b"\xef\xbb\xbf"
+_WIDE_BOMS = (b"\xff\xfe", b"\xfe\xff")
 
 
 def parse_numeric_csv(data: bytes, ncols: int, *, path: str = "<bytes>", what: str | None = None) -> np.ndarray:
@@ -40,8 +43,18 @@ def parse_numeric_csv(data: bytes, ncols: int, *, path: str = "<bytes>", what: s
         what: description of the expected layout, shown when a row has the wrong number of cells.
 
     A missing newline after the last row is accepted when the row is complete; blank lines at the
-    very end are ignored; Windows line ends are accepted.
+    very end are ignored; Windows line ends and a UTF-8 byte-order mark are accepted. A line longer
+    than ``MER_MAX_CSV_LINE_BYTES`` (:mod:`mer_data.limits`) is refused with its number.
     """
+    if data.startswith(_BOM):  # spreadsheet programs and Windows editors write one
+        data = data[len(_BOM) :]
+    elif data.startswith(_WIDE_BOMS) or b"\0" in data[:64]:
+        raise MotionFormatError(
+            "the file is UTF-16 text or binary, not a plain-text CSV",
+            path=path,
+            line=1,
+            fix="save it as UTF-8 (or ASCII) comma-separated text",
+        )
     if b"\r" in data:
         data = data.replace(b"\r\n", b"\n")
     cut_short = not data.endswith(b"\n")  # a file cut mid-row has no final line end
@@ -49,10 +62,21 @@ def parse_numeric_csv(data: bytes, ncols: int, *, path: str = "<bytes>", what: s
     if not data:
         raise MotionFormatError("the file is empty (no rows)", path=path, fix="re-export or re-download the clip")
     data += b"\n"
+    _check_line_length(data, path)
     values = _fast(data, ncols)
     if values is None:  # something is off: find out exactly what and where
         values = exact_parse(data, ncols, path=path, what=what, cut_short=cut_short)
     return values
+
+
+def _check_line_length(data: bytes, path: str) -> None:
+    """Every line within ``MER_MAX_CSV_LINE_BYTES`` (one vectorized pass; ``data`` ends with a newline)."""
+    ends = np.flatnonzero(np.frombuffer(data, np.uint8) == _NL)
+    lengths = np.diff(ends, prepend=-1) - 1
+    i = int(np.argmax(lengths))
+    if lengths[i] > limit("MER_MAX_CSV_LINE_BYTES"):
+        msg, fix = too_big("MER_MAX_CSV_LINE_BYTES", int(lengths[i]))
+        raise MotionFormatError(msg, path=path, line=i + 1, fix=fix)
 
 
 def _fast(data: bytes, ncols: int) -> np.ndarray | None:

@@ -15,6 +15,7 @@ line prints ``str(error)`` and exits non-zero; library callers can catch the cla
     │   ├── UnknownRobotError       lists the known robots
     │   └── RobotExistsError
     ├── MotionFormatError           motion files (CSV) that do not match the robot
+    ├── OutputError                 a computed output that is not finite: refused, never written
     ├── SplitError                  a train/eval split that does not fit the clips
     ├── ShardError                  training shards
     │   ├── ShardFormatError        not a shard, a damaged one, or an unsupported format version
@@ -46,6 +47,7 @@ __all__ = [
     "UnknownRobotError",
     "RobotExistsError",
     "MotionFormatError",
+    "OutputError",
     "ConfigError",
     "CheckpointError",
     "UnseenRobotError",
@@ -149,6 +151,10 @@ class RobotExistsError(RegistryError):
 
 class MotionFormatError(MerError):
     """A motion file (CSV) that does not match its robot's layout."""
+
+
+class OutputError(MerError):
+    """A computed output (motion, shard, skeleton) with NaN or infinite values; nothing is written."""
 
 
 class ConfigError(MerError):

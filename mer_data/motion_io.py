@@ -12,7 +12,7 @@ quaternions are scalar-first (w, x, y, z): the conversion happens here, at the e
 from __future__ import annotations
 
 import gzip
-import zlib
+import logging
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -21,8 +21,13 @@ import numpy as np
 from .atomic import atomic_write
 from .csv_numeric import parse_numeric_csv
 from .errors import MotionFormatError
+from .finite import require_finite
+from .plausibility import check_motion_arrays
 from .registry import Robot, load_robot
+from .safe_io import gunzip_limited, read_regular_file
 from .skeleton import Skeleton
+
+log = logging.getLogger(__name__)
 
 __all__ = [
     "Motion",
@@ -59,6 +64,7 @@ class Motion:
         base_quat: (F, 4) float64 unit base orientation, **wxyz**, world <- base.
         joints: (F, D) float64 joint angles [rad], in the order of ``columns``.
         columns: (D,) URDF joint names.
+        warnings: what :mod:`mer_data.plausibility` found unusual when the file was read.
     """
 
     robot: str
@@ -67,6 +73,7 @@ class Motion:
     base_quat: np.ndarray
     joints: np.ndarray
     columns: tuple[str, ...]
+    warnings: tuple[str, ...] = ()
 
     @property
     def num_frames(self) -> int:
@@ -131,25 +138,29 @@ def lafan1_columns(robot: str | Robot) -> tuple[str, ...]:
 
 
 def read_motion_bytes(path: str | Path) -> bytes:
-    """The bytes of a ``.csv`` or ``.csv.gz`` file (decompressed)."""
+    """The bytes of a ``.csv`` or ``.csv.gz`` file (decompressed).
+
+    Only regular files are read (a directory, FIFO, dangling link or link loop is refused before
+    anything is opened for reading), and neither the file nor its decompressed content may exceed
+    ``MER_MAX_MOTION_BYTES`` (:mod:`mer_data.limits`).
+    """
     p = Path(path)
-    try:
-        raw = p.read_bytes()
-    except FileNotFoundError:
-        raise MotionFormatError("no such file", path=p) from None
-    return decompress_motion(raw, p)
+    return decompress_motion(read_motion_file(p), p)
+
+
+def read_motion_file(path: str | Path) -> bytes:
+    """The raw bytes of a motion file (still gzipped for ``.gz``), checked as :func:`read_motion_bytes` says."""
+    return read_regular_file(
+        path, MotionFormatError, "MER_MAX_MOTION_BYTES", fix="pass a regular .csv or .csv.gz file of robot motion"
+    )
 
 
 def decompress_motion(raw: bytes, path: str | Path) -> bytes:
-    """``raw`` file bytes -> CSV bytes (gunzipped when ``path`` ends in ``.gz``)."""
+    """``raw`` file bytes -> CSV bytes (gunzipped when ``path`` ends in ``.gz``, at most
+    ``MER_MAX_MOTION_BYTES`` of output: a gzip bomb is refused, not expanded)."""
     if not str(path).endswith(".gz"):
         return raw
-    try:
-        return gzip.decompress(raw)
-    except (OSError, EOFError, zlib.error) as exc:
-        raise MotionFormatError(
-            f"not a valid gzip file ({exc})", path=path, fix="re-download it, or decompress it yourself to check"
-        ) from None
+    return gunzip_limited(raw, path, MotionFormatError, "MER_MAX_MOTION_BYTES")
 
 
 def parse_lafan1(
@@ -159,14 +170,20 @@ def parse_lafan1(
     path: str | Path = "<bytes>",
     fps: float = 30.0,
     quat_tolerance: float = QUAT_TOLERANCE,
+    plausibility: bool = True,
 ) -> Motion:
-    """Parse LAFAN1 CSV bytes of ``robot`` into a :class:`Motion` (quaternion converted to wxyz)."""
+    """Parse LAFAN1 CSV bytes of ``robot`` into a :class:`Motion` (quaternion converted to wxyz).
+
+    With ``plausibility`` (the default) the values are checked by
+    :func:`mer_data.plausibility.check_motion_arrays`: the impossible is refused (MotionFormatError
+    with line and column), the unusual is logged and kept in ``Motion.warnings``.
+    """
     r = load_robot(robot) if isinstance(robot, str) else robot
     cols = lafan1_columns(r)
     ncols = len(ROOT_COLUMNS) + len(cols)
     what = f"{r.name}: root xyz, root quaternion xyzw, {len(cols)} joint angles"
     a = parse_numeric_csv(data, ncols, path=str(path), what=what)
-    if not fps > 0:
+    if not (fps > 0 and np.isfinite(fps)):
         raise MotionFormatError(f"frame rate must be positive, got {fps}", path=path)
     xyzw = a[:, 3:7]
     norm = np.sqrt(np.einsum("ij,ij->i", xyzw, xyzw))
@@ -185,13 +202,20 @@ def parse_lafan1(
     quat[:, 0] = xyzw[:, 3]
     quat[:, 1:] = xyzw[:, :3]
     quat /= norm[:, None]
+    base_pos, joints = np.ascontiguousarray(a[:, :3]), np.ascontiguousarray(a[:, 7:])
+    warnings: list[str] = []
+    if plausibility:
+        warnings = check_motion_arrays(base_pos, quat, joints, cols, r.skeleton, float(fps), path=path)
+        for w in warnings:
+            log.warning("unusual motion: %s", w)
     return Motion(
         robot=r.name,
         fps=float(fps),
-        base_pos=np.ascontiguousarray(a[:, :3]),
+        base_pos=base_pos,
         base_quat=quat,
-        joints=np.ascontiguousarray(a[:, 7:]),
+        joints=joints,
         columns=cols,
+        warnings=tuple(warnings),
     )
 
 
@@ -219,6 +243,8 @@ def write_lafan1_csv(path: str | Path, motion: Motion, *, decimals: int = 6) -> 
     missing = [c for c in cols if c not in pos]
     if missing:
         raise MotionFormatError(f"the motion has no column for joints {missing}", path=path)
+    require_finite({"base_pos": motion.base_pos, "base_quat": motion.base_quat, "joints": motion.joints}, path=path,
+                   what="motion")  # fmt: skip
     q = motion.base_quat
     table = np.column_stack([motion.base_pos, q[:, 1:4], q[:, 0:1], motion.joints[:, [pos[c] for c in cols]]])
     lines = "\n".join(",".join(f"{v:.{decimals}f}" for v in row) for row in table) + "\n"

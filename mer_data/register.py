@@ -13,6 +13,7 @@ from .errors import RobotCardError
 from .keypoint_proposal import KeypointProposal, propose_keypoints
 from .registry import Robot, validate_robot_name, write_robot
 from .robot_card import DEFAULT_BODY_PARTS, RobotCard, parse_keypoints
+from .safe_io import decode_utf8, read_regular_file
 from .skeleton import KEYPOINTS
 from .skeleton_builder import build_skeleton
 from .urdf import load_urdf
@@ -73,14 +74,12 @@ def parse_lock(text: str) -> tuple[str, float]:
 def load_keypoints_file(path: str | Path) -> dict:
     """Key points from a YAML or JSON file: either the mapping itself or ``{keypoints: {...}}``."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise RobotCardError(f"cannot read the key point file: {exc}", path=path) from None
+    raw = read_regular_file(path, RobotCardError, "MER_MAX_CARD_BYTES", fix="check the path given to --keypoints")
+    text = decode_utf8(raw, path, RobotCardError)
     try:
         data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
-    except (json.JSONDecodeError, yaml.YAMLError) as exc:
-        raise RobotCardError(f"cannot parse the key point file: {exc}", path=path) from None
+    except (ValueError, yaml.YAMLError, RecursionError) as exc:
+        raise RobotCardError(f"cannot parse the key point file: {str(exc)[:300]}", path=path) from None
     if isinstance(data, dict) and "keypoints" in data:
         data = data["keypoints"]
     return parse_keypoints(data, str(path))

@@ -30,6 +30,8 @@ from typing import Any, Mapping
 import yaml
 
 from .errors import RobotCardError
+from .limits import MAX_LENGTH_M
+from .safe_io import decode_utf8, read_regular_file
 from .skeleton import KEYPOINTS, BodyPart
 
 __all__ = ["RobotCard", "KeypointSpec", "DEFAULT_BODY_PARTS", "load_card", "parse_card", "dump_card"]
@@ -86,16 +88,15 @@ class RobotCard:
 def load_card(path: str | Path) -> RobotCard:
     """Read a robot card YAML file (see module docstring)."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise RobotCardError(f"cannot read the robot card: {exc}", path=path) from None
-    return parse_card(text, str(path))
+    data = read_regular_file(path, RobotCardError, "MER_MAX_CARD_BYTES", fix="check the robot's folder")
+    return parse_card(decode_utf8(data, path, RobotCardError), str(path))
 
 
 def _load_yaml(text: str, path: str) -> Any:
     try:
         return yaml.safe_load(text)
+    except RecursionError:
+        raise RobotCardError("the YAML is nested too deeply", path=path, fix="repair the YAML structure") from None
     except yaml.YAMLError as exc:
         line = getattr(getattr(exc, "problem_mark", None), "line", None)
         raise RobotCardError(
@@ -156,12 +157,19 @@ def parse_keypoints(data: Any, path: str, *, require_all: bool = True) -> dict[s
         if (
             not isinstance(off, (list, tuple))
             or len(off) != 3
-            or not all(isinstance(x, (int, float)) and math.isfinite(x) for x in off)
+            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in off)
         ):
             raise RobotCardError(
                 f"offset of key point {k!r} must be three finite numbers [m]",
                 path=path,
                 element=f"keypoints.{k}.offset",
+            )
+        if any(abs(x) > MAX_LENGTH_M for x in off):
+            raise RobotCardError(
+                f"offset {list(off)} of key point {k!r} is beyond +-{MAX_LENGTH_M:g} m from its link",
+                path=path,
+                element=f"keypoints.{k}.offset",
+                fix="give the offset in metres, in the link's frame",
             )
         out[k] = KeypointSpec(str(v["link"]), tuple(float(x) for x in off), v.get("note"))
     return out

@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from .errors import BrokenReferenceError, RobotCardError, UnsupportedJointError
+from .errors import BrokenReferenceError, MalformedURDFError, RobotCardError, UnsupportedJointError
 from .robot_card import RobotCard
 from .skeleton import KEYPOINTS, Skeleton
 from .urdf import UrdfJoint, UrdfModel
@@ -274,6 +274,15 @@ def build_skeleton(urdf: UrdfModel, card: RobotCard) -> Skeleton:
             )
         nominal[j] = value
 
+    for what, arr in (("offsets", offsets), ("axes", np.asarray(axes)), ("rest rotations", np.asarray(rest))):
+        if not np.isfinite(arr).all():
+            j = int(np.flatnonzero(~np.isfinite(arr.reshape(J, -1)).all(axis=1))[0])
+            raise MalformedURDFError(
+                f"the {what} of node {names[j]!r} overflow to NaN/inf (the URDF's numbers are too large)",
+                path=urdf.path,
+                element=f"link '{links[j]}'",
+                fix="check the origins and axes along this chain: lengths in metres, angles in radians",
+            )
     skel = Skeleton(
         name=card.name,
         node_names=tuple(names),

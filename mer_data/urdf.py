@@ -12,13 +12,14 @@ from __future__ import annotations
 
 import io
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from lxml import etree
 
 from .errors import MalformedURDFError
+from .safe_io import read_regular_file
 from .urdf_checks import JOINT_TYPES, CheckedJoint, check_joints, check_links, check_tree, parse_xml
 
 log = logging.getLogger(__name__)
@@ -72,26 +73,32 @@ class UrdfModel:
     joints: tuple[UrdfJoint, ...]
     root: str
     collision_points: dict[str, np.ndarray]
+    # lookups built once (linear in the file): name -> joint, link -> child joints / parent joint
+    _by_name: dict[str, UrdfJoint] = field(init=False, repr=False, compare=False)
+    _children: dict[str, tuple[UrdfJoint, ...]] = field(init=False, repr=False, compare=False)
+    _parent: dict[str, UrdfJoint] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        children: dict[str, list[UrdfJoint]] = {}
+        for j in self.joints:
+            children.setdefault(j.parent, []).append(j)
+        object.__setattr__(self, "_by_name", {j.name: j for j in self.joints})
+        object.__setattr__(self, "_children", {k: tuple(v) for k, v in children.items()})
+        object.__setattr__(self, "_parent", {j.child: j for j in self.joints})
 
     def joint(self, name: str) -> UrdfJoint:
-        for j in self.joints:
-            if j.name == name:
-                return j
-        raise KeyError(name)
+        return self._by_name[name]
 
     @property
     def joint_names(self) -> tuple[str, ...]:
         return tuple(j.name for j in self.joints)
 
     def children_of(self, link: str) -> list[UrdfJoint]:
-        """Joints whose parent is ``link``, in file order."""
-        return [j for j in self.joints if j.parent == link]
+        """Joints whose parent is ``link``, in file order (a dictionary lookup, not a scan)."""
+        return list(self._children.get(link, ()))
 
     def parent_joint_of(self, link: str) -> UrdfJoint | None:
-        for j in self.joints:
-            if j.child == link:
-                return j
-        return None
+        return self._parent.get(link)
 
 
 def load_urdf(path: str | Path) -> UrdfModel:
@@ -102,14 +109,7 @@ def load_urdf(path: str | Path) -> UrdfModel:
         UnsupportedJointError: with the file, line and element at fault.
     """
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise MalformedURDFError(
-            "file not found", path=path, fix="check the path given to --urdf"
-        ) from None
-    except OSError as exc:
-        raise MalformedURDFError(f"cannot read the file: {exc}", path=path) from None
+    data = read_regular_file(path, MalformedURDFError, "MER_MAX_URDF_BYTES", fix="check the path given to --urdf")
     return parse_urdf_bytes(data, str(path))
 
 
@@ -124,20 +124,29 @@ def parse_urdf_bytes(data: bytes, path: str = "<urdf>") -> UrdfModel:
         links=tuple(link_lines),
         link_lines=link_lines,
         root=check_tree(link_lines, joints, path),
-        **_read_values_with_yourdfpy(root, joints),
+        **_read_values_with_yourdfpy(root, joints, path),
     )
 
 
-def _read_values_with_yourdfpy(root, checked: list[CheckedJoint]) -> dict:
+def _read_values_with_yourdfpy(root, checked: list[CheckedJoint], path: str) -> dict:
     """Read origins, axes, limits, mimic tags and collision shapes with yourdfpy.
 
     Everything yourdfpy could choke on (numbers, references, limits) was validated above with
-    line numbers, so this cannot fail; yourdfpy stays the one reader of element values.
+    line numbers; elements mer does not use (visuals, inertials, ...) are yourdfpy's to read, and
+    anything it refuses there becomes a :class:`MalformedURDFError`. yourdfpy stays the one reader
+    of element values.
     """
     import yourdfpy
 
     buf = io.BytesIO(etree.tostring(root))
-    model = yourdfpy.URDF.load(buf, load_meshes=False, build_scene_graph=False, load_collision_meshes=False)
+    try:
+        model = yourdfpy.URDF.load(buf, load_meshes=False, build_scene_graph=False, load_collision_meshes=False)
+    except Exception as exc:  # noqa: BLE001 - a third-party parser's failure, reported as ours
+        raise MalformedURDFError(
+            f"an element mer does not check could not be read ({type(exc).__name__}: {exc})",
+            path=path,
+            fix="check the numbers and attributes of <visual>, <inertial>, <material> and other elements",
+        ) from None
     theirs = {j.name: j for j in model.robot.joints}
     out = []
     for c in checked:

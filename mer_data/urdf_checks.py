@@ -20,11 +20,22 @@ from .errors import (
     UnsafeURDFError,
     UnsupportedJointError,
 )
+from .limits import MAX_LENGTH_M, MAX_NUMBER, limit, too_big
 
-__all__ = ["JOINT_TYPES", "CheckedJoint", "parse_xml", "check_links", "check_joints", "check_tree", "did_you_mean"]
+__all__ = [
+    "JOINT_TYPES",
+    "CheckedJoint",
+    "parse_xml",
+    "check_size",
+    "check_links",
+    "check_joints",
+    "check_tree",
+    "did_you_mean",
+]
 
 JOINT_TYPES = ("revolute", "continuous", "prismatic", "fixed", "floating", "planar")
 _UNSAFE = re.compile(rb"<!\s*(DOCTYPE|ENTITY)", re.IGNORECASE)
+_UNSAFE_TEXT = re.compile(r"<!\s*(DOCTYPE|ENTITY)", re.IGNORECASE)
 
 
 @dataclass(frozen=True)
@@ -42,7 +53,9 @@ def _line_of(data: bytes, offset: int) -> int:
     return data.count(b"\n", 0, offset) + 1
 
 
-def _floats(text: str | None, n: int, *, what: str, path: str, line: int, element: str) -> np.ndarray:
+def _floats(
+    text: str | None, n: int, *, what: str, path: str, line: int, element: str, bound: float = MAX_NUMBER
+) -> np.ndarray:
     if text is None:
         raise MalformedURDFError(f"missing {what}", path=path, line=line, element=element)
     parts = text.split()
@@ -64,6 +77,15 @@ def _floats(text: str | None, n: int, *, what: str, path: str, line: int, elemen
             element=element,
             fix=f"write {what} as {n} space-separated finite numbers",
         )
+    if any(abs(v) > bound for v in vals):
+        unit = " m" if bound == MAX_LENGTH_M else ""
+        raise MalformedURDFError(
+            f"{what}={text!r} is beyond +-{bound:g}{unit}: no robot is that large, and it would overflow the kinematics",
+            path=path,
+            line=line,
+            element=element,
+            fix=f"write {what} in SI units (metres, radians); a joint that turns freely is type=\"continuous\"",
+        )
     return np.asarray(vals, dtype=np.float64)
 
 
@@ -73,18 +95,72 @@ def _float(text: str | None, *, what: str, path: str, line: int, element: str) -
     return float(_floats(text, 1, what=what, path=path, line=line, element=element)[0])
 
 
-def parse_xml(data: bytes, path: str):
-    """Parse URDF bytes safely (DTDs and entities refused) → the ``<robot>`` element."""
+def _unsafe(kind: str, path: str, line: int | None) -> UnsafeURDFError:
+    return UnsafeURDFError(
+        f"the file declares <!{kind.upper()}>; mer never resolves DTDs or XML "
+        "entities (they can read local files or the network)",
+        path=path,
+        line=line,
+        fix="expand xacro/entities into plain XML (e.g. `xacro robot.urdf.xacro > robot.urdf`) "
+        "and remove the DOCTYPE",
+    )
+
+
+def check_size(data: bytes, path: str) -> None:
+    """File size and longest line within their limits (one linear pass over the bytes)."""
+    if len(data) > limit("MER_MAX_URDF_BYTES"):
+        msg, fix = too_big("MER_MAX_URDF_BYTES", len(data))
+        raise MalformedURDFError(msg, path=path, fix=fix)
+    ends = np.flatnonzero(np.frombuffer(data, np.uint8) == 10)
+    bounds = np.concatenate([[-1], ends, [len(data)]])
+    lengths = np.diff(bounds) - 1
+    i = int(np.argmax(lengths))
+    if lengths[i] > limit("MER_MAX_URDF_LINE_BYTES"):
+        msg, fix = too_big("MER_MAX_URDF_LINE_BYTES", int(lengths[i]))
+        raise MalformedURDFError(msg, path=path, line=i + 1, fix=fix)
+
+
+def _wide_codec(head: bytes) -> str | None:
+    """UTF-16/32 from a byte-order mark or the NUL bytes around the first ``<``; None for 8-bit text."""
+    for prefix, codec in (
+        (b"\xff\xfe\x00\x00", "utf-32"), (b"\x00\x00\xfe\xff", "utf-32"), (b"\xff\xfe", "utf-16"),
+        (b"\xfe\xff", "utf-16"), (b"<\x00\x00\x00", "utf-32-le"), (b"\x00\x00\x00<", "utf-32-be"),
+        (b"<\x00", "utf-16-le"), (b"\x00<", "utf-16-be"),
+    ):  # fmt: skip
+        if head.startswith(prefix):
+            return codec
+    return None
+
+
+def _check_unsafe(data: bytes, path: str) -> None:
+    """Refuse DTDs and entities, whatever the encoding (UTF-8 bytes, or UTF-16/32 text)."""
     m = _UNSAFE.search(data)
     if m:
-        raise UnsafeURDFError(
-            f"the file declares <!{m.group(1).decode().upper()}>; mer never resolves DTDs or XML "
-            "entities (they can read local files or the network)",
-            path=path,
-            line=_line_of(data, m.start()),
-            fix="expand xacro/entities into plain XML (e.g. `xacro robot.urdf.xacro > robot.urdf`) "
-            "and remove the DOCTYPE",
-        )
+        raise _unsafe(m.group(1).decode(), path, _line_of(data, m.start()))
+    codec = _wide_codec(data[:4])
+    if codec is not None:
+        text = data.decode(codec, errors="replace")
+        t = _UNSAFE_TEXT.search(text)
+        if t:
+            raise _unsafe(t.group(1), path, text.count("\n", 0, t.start()) + 1)
+
+
+def _check_depth(root, path: str) -> None:
+    """Nesting depth of the elements within the limit (one walk over the tree)."""
+    cap = limit("MER_MAX_XML_DEPTH")
+    depth = 0
+    for event, el in etree.iterwalk(root, events=("start", "end")):
+        depth += 1 if event == "start" else -1
+        if depth > cap:
+            msg, fix = too_big("MER_MAX_XML_DEPTH", f"over {cap}")
+            raise MalformedURDFError(msg, path=path, line=el.sourceline, element=f"<{el.tag}>", fix=fix)
+
+
+def parse_xml(data: bytes, path: str):
+    """Parse URDF bytes safely (DTDs and entities refused, size, line length, depth and element
+    counts within :mod:`mer_data.limits`) → the ``<robot>`` element. Linear in the file."""
+    check_size(data, path)
+    _check_unsafe(data, path)
     parser = etree.XMLParser(
         resolve_entities=False, no_network=True, load_dtd=False, huge_tree=False, remove_comments=True
     )
@@ -97,6 +173,13 @@ def parse_xml(data: bytes, path: str):
             line=exc.lineno,
             fix="repair the XML (an unclosed tag or stray character is the usual cause)",
         ) from None
+    except ValueError as exc:  # e.g. a str with an encoding declaration, or an unknown encoding
+        raise MalformedURDFError(f"cannot parse the XML: {exc}", path=path, fix="save the URDF as UTF-8 XML") from None
+    docinfo = root.getroottree().docinfo
+    if docinfo.doctype or docinfo.internalDTD is not None or docinfo.externalDTD is not None:
+        raise _unsafe("DOCTYPE", path, 1)
+    if not isinstance(root.tag, str):
+        raise MalformedURDFError("the document has no element", path=path, fix="a URDF's top element must be <robot name=...>")
     if root.tag != "robot":
         raise MalformedURDFError(
             f"the root element is <{root.tag}>, not <robot>",
@@ -104,6 +187,16 @@ def parse_xml(data: bytes, path: str):
             line=root.sourceline,
             fix="a URDF's top element must be <robot name=...>",
         )
+    _check_depth(root, path)
+    for tag in ("link", "joint"):
+        n = sum(1 for _ in root.iterchildren(tag))
+        if n > limit("MER_MAX_URDF_ELEMENTS"):
+            msg, fix = too_big("MER_MAX_URDF_ELEMENTS", n)
+            raise MalformedURDFError(msg, path=path, line=root.sourceline, element=f"<{tag}>", fix=fix)
+    for el in root.iter():
+        if not isinstance(el.tag, str):  # an entity reference or processing instruction
+            if isinstance(el, etree._Entity):
+                raise _unsafe("ENTITY", path, el.sourceline)
     return root
 
 
@@ -125,9 +218,32 @@ def check_links(root, path: str) -> dict[str, int]:
                 fix="link names must be unique",
             )
         link_lines[name] = el.sourceline
+        _check_collisions(el, name, path)
     if not link_lines:
         raise MalformedURDFError("the robot has no <link>", path=path, line=root.sourceline)
     return link_lines
+
+
+_SHAPES = {"box": (("size", 3),), "sphere": (("radius", 1),), "cylinder": (("radius", 1), ("length", 1))}
+
+
+def _check_collisions(link, name: str, path: str) -> None:
+    """The numbers of a link's collision origins and primitive shapes (read for key-point proposals)."""
+    element = f"link '{name}'"
+    for col in link.iterchildren("collision"):
+        org = col.find("origin")
+        if org is not None:
+            _floats(org.get("xyz", "0 0 0"), 3, what="collision origin xyz", path=path, line=org.sourceline, element=element, bound=MAX_LENGTH_M)
+            _floats(org.get("rpy", "0 0 0"), 3, what="collision origin rpy", path=path, line=org.sourceline, element=element)
+        geo = col.find("geometry")
+        if geo is None:
+            continue
+        for shape, attrs in _SHAPES.items():
+            el = geo.find(shape)
+            if el is None:
+                continue
+            for attr, n in attrs:
+                _floats(el.get(attr), n, what=f"{shape} {attr}", path=path, line=el.sourceline, element=element, bound=MAX_LENGTH_M)
 
 
 def check_joints(root, path: str, link_lines: dict[str, int]) -> tuple[list[CheckedJoint], dict[str, tuple[str, int]]]:
@@ -195,7 +311,7 @@ def check_joints(root, path: str, link_lines: dict[str, int]) -> tuple[list[Chec
             )
         org = el.find("origin")
         if org is not None:
-            _floats(org.get("xyz", "0 0 0"), 3, what="origin xyz", path=path, line=org.sourceline, element=element)
+            _floats(org.get("xyz", "0 0 0"), 3, what="origin xyz", path=path, line=org.sourceline, element=element, bound=MAX_LENGTH_M)
             _floats(org.get("rpy", "0 0 0"), 3, what="origin rpy", path=path, line=org.sourceline, element=element)
         ax_el = el.find("axis")
         axis = np.array([1.0, 0.0, 0.0])

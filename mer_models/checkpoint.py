@@ -19,6 +19,7 @@ sibling and renamed into place, so an interrupted save never leaves a half-writt
 from __future__ import annotations
 
 import datetime as _dt
+import errno
 import json
 import logging
 import os
@@ -32,6 +33,8 @@ from safetensors.torch import load_file, save_file
 
 from mer_data.atomic import atomic_dir
 from mer_data.errors import CheckpointError, ConfigError, UnseenRobotError
+from mer_data.finite import require_finite
+from mer_data.safe_io import decode_utf8, read_regular_file
 
 from . import __version__
 from .config import RunConfig, from_dict
@@ -115,6 +118,7 @@ def save_checkpoint(
         "step": int(step),
     }
     weights = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
+    require_finite(weights, path=path, what="model weights")  # a diverged run is refused, not saved
 
     def write(tmp: Path) -> None:
         (tmp / CONFIG).write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
@@ -134,16 +138,47 @@ def save_checkpoint(
     return Path(path)
 
 
+def _no_constant(name: str):
+    raise ValueError(f"{name} is not a JSON number")
+
+
+def _check_fields(meta: dict, cfg: Path) -> None:
+    """The types of the top-level fields other than ``run`` (checked by :func:`from_dict`)."""
+    step = meta["step"]
+    if not isinstance(step, int) or isinstance(step, bool) or step < 0:
+        raise CheckpointError(f"step must be an integer >= 0, not {step!r}", path=cfg, element="step")
+    robots = meta["robots"]
+    ok = isinstance(robots, dict) and all(
+        isinstance(role, dict) and all(isinstance(k, str) and isinstance(v, (str, type(None))) for k, v in role.items())
+        for role in robots.values()
+    )
+    if not ok:
+        raise CheckpointError(
+            "robots must map a role (targets, references) to {robot name: skeleton fingerprint}",
+            path=cfg,
+            element="robots",
+            fix="the file was edited or written by other code; restore it from the original checkpoint",
+        )
+    for key in ("data", "metrics"):
+        if not isinstance(meta.get(key, {}), dict):
+            raise CheckpointError(f"{key} must be a JSON object", path=cfg, element=key)
+
+
 def _read_meta(path: Path) -> dict:
     cfg = path / CONFIG
-    if not cfg.is_file():
+    if not cfg.exists() and not cfg.is_symlink():
         raise CheckpointError(
             f"no {CONFIG} in {path}", path=path, fix="pass a checkpoint folder written by `mer train`"
         )
+    text = decode_utf8(read_regular_file(cfg, CheckpointError, "MER_MAX_CONFIG_BYTES"), cfg, CheckpointError)
     try:
-        meta = json.loads(cfg.read_text())
+        meta = json.loads(text, parse_constant=_no_constant)
     except json.JSONDecodeError as exc:
         raise CheckpointError(f"{CONFIG} is not valid JSON: {exc.msg}", path=cfg, line=exc.lineno) from None
+    except (ValueError, RecursionError) as exc:  # NaN/Infinity, or nesting deeper than Python's stack
+        raise CheckpointError(
+            f"{CONFIG} is not valid JSON: {str(exc)[:100]}", path=cfg, fix="numbers must be finite; restore the file"
+        ) from None
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise CheckpointError(f"not a mer checkpoint (format {meta.get('format') if isinstance(meta, dict) else None!r})", path=cfg)
     if meta.get("format_version") != FORMAT_VERSION:
@@ -156,6 +191,7 @@ def _read_meta(path: Path) -> dict:
     for key in ("run", "robots", "step"):
         if key not in meta:
             raise CheckpointError(f"{CONFIG} misses the field {key!r}", path=cfg, element=key)
+    _check_fields(meta, cfg)
     return meta
 
 
@@ -166,7 +202,7 @@ def load_weights(model: torch.nn.Module, file: str | Path) -> None:
         raise CheckpointError("the weights file is missing", path=file, fix="the checkpoint folder is incomplete; copy it again")
     try:
         sd = load_file(str(file))
-    except (SafetensorError, OSError, ValueError) as exc:
+    except (SafetensorError, OSError, ValueError, RuntimeError) as exc:
         raise CheckpointError(f"cannot read the weights: {exc}", path=file, fix="the file is corrupt; download or copy it again") from None
     own = model.state_dict()
     missing = sorted(set(own) - set(sd))
@@ -191,13 +227,21 @@ def load_weights(model: torch.nn.Module, file: str | Path) -> None:
                 element=k,
                 fix="the weights and config.json come from different models; use a consistent checkpoint",
             )
+        if sd[k].is_floating_point() and not bool(torch.isfinite(sd[k]).all()):
+            bad = int((~torch.isfinite(sd[k])).sum())
+            raise CheckpointError(
+                f"tensor {k} holds {bad} NaN/inf value(s) of {sd[k].numel()}: the model would output NaN",
+                path=file,
+                element=k,
+                fix="the training diverged or the file is damaged; use an earlier checkpoint",
+            )
     model.load_state_dict({k: sd[k].to(own[k].dtype) for k in own}, strict=True)
 
 
 def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> Checkpoint:
     """Build the model from ``config.json`` and load ``model.safetensors`` strictly."""
     path = Path(path)
-    if not path.is_dir():
+    if not _is_dir(path):
         raise CheckpointError(f"no checkpoint folder at {path}", path=path, fix="pass the folder `mer train --out` wrote")
     meta = _read_meta(path)
     try:
@@ -215,10 +259,20 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> Che
     return Checkpoint(path, run, model, meta["robots"], meta.get("data", {}), meta.get("metrics", {}), int(meta["step"]))
 
 
+def _is_dir(p: Path) -> bool:
+    """``Path.is_dir`` that answers False for names the file system refuses (too long, bad bytes)."""
+    try:
+        return p.is_dir()
+    except (OSError, ValueError) as exc:
+        if isinstance(exc, OSError) and exc.errno not in (errno.ENAMETOOLONG, errno.EACCES, errno.EINVAL):
+            raise CheckpointError(f"cannot access {p} ({exc.strerror})", path=p) from None
+        return False
+
+
 def resolve_model(spec: str | Path, device: str | torch.device = "cpu") -> Checkpoint:
     """A checkpoint folder, or a model name from the zoo (when :mod:`mer_models.zoo` is installed)."""
     p = Path(spec).expanduser()
-    if p.is_dir() or os.sep in str(spec) or str(spec).startswith("."):
+    if _is_dir(p) or os.sep in str(spec) or str(spec).startswith("."):
         return load_checkpoint(p, device)
     try:
         from . import zoo  # type: ignore[attr-defined]

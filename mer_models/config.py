@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 from mer_data.errors import ConfigError
+from mer_data.limits import limit, too_big
 
 __all__ = [
     "ModelConfig",
@@ -36,6 +37,14 @@ __all__ = [
 def _check(cond: bool, cls: str, name: str, msg: str) -> None:
     if not cond:
         raise ConfigError(f"{msg}", element=f"{cls}.{name}", fix="correct the value (see docs/model.md)")
+
+
+def _check_finite(obj) -> None:
+    """Every float field finite (an infinite scale or noise level turns every output into NaN)."""
+    for f in dataclasses.fields(obj):
+        v = getattr(obj, f.name)
+        if isinstance(v, float):
+            _check(math.isfinite(v), type(obj).__name__, f.name, f"{f.name}={v} must be a finite number")
 
 
 @dataclass(frozen=True)
@@ -79,10 +88,27 @@ class ModelConfig:
         _check(0.0 <= self.dropout < 1.0, c, "dropout", "must be in [0, 1)")
         for name in ("sigma_data", "pos_scale", "vel_scale"):
             _check(float(getattr(self, name)) > 0, c, name, "must be > 0")
+        _check_finite(self)
+        n = self.estimated_parameters
+        if n > limit("MER_MAX_MODEL_PARAMETERS"):
+            msg, fix = too_big("MER_MAX_MODEL_PARAMETERS", n)
+            raise ConfigError(
+                f"{msg} (hidden={self.hidden}, layers={self.layers}, ffn={self.ffn}); nothing was built",
+                element=f"{c}.layers",
+                fix=fix,
+            )
 
     @property
     def head_dim(self) -> int:
         return self.hidden // self.heads
+
+    @property
+    def estimated_parameters(self) -> int:
+        """Parameters of the network, estimated from the configuration alone (within ~25 %), so that
+        an absurd configuration is refused before anything is allocated."""
+        H = self.hidden
+        per_layer = 12 * H * H + 2 * H * self.ffn + 16 * self.cross_heads_per_condition * self.head_dim * H
+        return 2 * self.layers * per_layer
 
 
 @dataclass(frozen=True)
@@ -139,6 +165,7 @@ class SamplerConfig:
         _check(self.rho > 0, c, "rho", "must be > 0")
         _check(self.guidance >= 0, c, "guidance", "must be >= 0")
         _check(isinstance(self.overlap, int) and self.overlap >= 1, c, "overlap", "must be an integer >= 1")
+        _check_finite(self)
 
 
 @dataclass(frozen=True)
@@ -178,6 +205,7 @@ class TrainConfig:
         _check(self.p_std > 0, c, "p_std", "must be > 0")
         _check(isinstance(self.warmup, int) and self.warmup >= 0, c, "warmup", "must be an integer >= 0")
         _check(isinstance(self.opt_iters, int) and self.opt_iters >= 0, c, "opt_iters", "must be an integer >= 0")
+        _check_finite(self)
 
 
 @dataclass(frozen=True)

@@ -41,6 +41,9 @@ def plot_motion(
     matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt
 
+    from .writers import check_motion_finite
+
+    check_motion_finite(motion, path)
     skel: Skeleton = motion.skeleton
     pos, _ = motion.forward_kinematics()
     F = pos.shape[0]

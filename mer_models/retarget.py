@@ -36,7 +36,7 @@ from .config import EnergyConfig, SamplerConfig
 from .kinematics import graph_from_batch
 from .long_horizon import prepare_reference, retarget_sequence
 from .optimize import DEFAULT_GN_ITERS, DEFAULT_ITERS, optimize_motion
-from .writers import TargetMotion, write_csv, write_mcap, write_npz
+from .writers import TargetMotion, check_motion_finite, write_csv, write_mcap, write_npz
 
 log = logging.getLogger(__name__)
 
@@ -187,6 +187,7 @@ def retarget_file(
     skel = get_skeleton(source)
     feats = source_features(motion.base_pos, motion.base_quat, motion.node_angles(skel), skel, MODEL_FPS)
     res = retarget_features(feats, skel, tgt_robot.skeleton, method=method, checkpoint=checkpoint, fps=MODEL_FPS, **kw)
+    check_motion_finite(res.motion, out_csv or npz or mcap or plot)  # all outputs or none
     if out_csv is not None:
         res.outputs["csv"] = write_csv(out_csv, res.motion)
     if npz is not None:

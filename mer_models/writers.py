@@ -33,12 +33,13 @@ import torch
 
 from mer_data.atomic import atomic_write
 from mer_data.features import finite_difference
+from mer_data.finite import require_finite
 from mer_data.fk import fk_skeleton, link_rotations, skeleton_tensors
 from mer_data.registry import load_robot
 from mer_data.rotations import matrix_to_axis_angle, matrix_to_quat
 from mer_data.skeleton import Skeleton
 
-__all__ = ["TargetMotion", "csv_columns", "write_csv", "write_npz", "write_mcap"]
+__all__ = ["TargetMotion", "csv_columns", "check_motion_finite", "write_csv", "write_npz", "write_mcap"]
 
 
 @dataclass(frozen=True)
@@ -75,6 +76,12 @@ class TargetMotion:
         return pos.numpy(), rot.numpy()
 
 
+def check_motion_finite(motion: TargetMotion, path: str | Path | None = None) -> None:
+    """Refuse (OutputError) a motion with NaN/inf angles, positions or rotations: nothing is written."""
+    require_finite({"q": motion.q, "base_pos": motion.base_pos, "base_rot": motion.base_rot}, path=path,
+                   what=f"retargeted motion of {motion.skeleton.name!r}")  # fmt: skip
+
+
 def csv_columns(skel: Skeleton) -> tuple[str, ...]:
     """The joint order of the CSV: the card's ``lafan1_columns`` if any, else node order."""
     try:
@@ -93,6 +100,7 @@ def _joint_matrix(motion: TargetMotion, cols: tuple[str, ...]) -> np.ndarray:
 
 def write_csv(path: str | Path, motion: TargetMotion, *, decimals: int = 6) -> Path:
     """The target's LAFAN1-style CSV (see module docstring)."""
+    check_motion_finite(motion, path)
     cols = csv_columns(motion.skeleton)
     quat = motion.base_quat()
     table = np.column_stack([motion.base_pos, quat[:, 1:4], quat[:, :1], _joint_matrix(motion, cols)])
@@ -133,6 +141,7 @@ def body_arrays(motion: TargetMotion) -> dict[str, np.ndarray]:
 
 def write_npz(path: str | Path, motion: TargetMotion) -> Path:
     """BeyondMimic-style npz (see module docstring)."""
+    check_motion_finite(motion, path)
     cols = csv_columns(motion.skeleton)
     jp = _joint_matrix(motion, cols)
     arrays = {
@@ -143,6 +152,7 @@ def write_npz(path: str | Path, motion: TargetMotion) -> Path:
     }
     for k, v in body_arrays(motion).items():
         arrays[k] = v if k == "body_names" else v.astype(np.float32)
+    require_finite(arrays, path=path, what="npz motion")
     buf = io.BytesIO()
     np.savez(buf, **arrays)
     return atomic_write(path, buf.getvalue())
@@ -157,6 +167,9 @@ def write_mcap(path: str | Path, motion: TargetMotion, *, reference_points: np.n
 
     from mer_data.shards.foxglove import FRAME_TRANSFORMS_SCHEMA, SCENE_UPDATE_SCHEMA, frame_transforms, scene_update
 
+    check_motion_finite(motion, path)
+    if reference_points is not None:
+        require_finite({"reference_points": reference_points}, path=path, what="reference key points")
     skel = motion.skeleton
     prefix = skel.name
     base_rotvec = matrix_to_axis_angle(torch.from_numpy(motion.base_rot)).numpy()

@@ -29,6 +29,7 @@ import torch
 
 from ..atomic import atomic_write
 from ..errors import MerError, ShardBuildError, ShardFormatError
+from ..motion_io import read_motion_file
 from .card import write_card
 from .clips import BuildContext, ClipResult, ClipTask, process_clip
 from .config import BuildConfig
@@ -111,7 +112,10 @@ def _up_to_date(part: Part, clips: dict[str, Path], build_id: str) -> ShardMeta 
         meta = open_shard(part.final).meta
     except MerError:
         return None
-    shas = {c: sha256_bytes(clips[c].read_bytes()) for c in part.clips}
+    try:
+        shas = {c: sha256_bytes(read_motion_file(clips[c])) for c in part.clips}
+    except MerError:
+        return None  # rebuilt; the clip's own error is reported then
     return meta if meta.part_key == part_key(build_id, part.name, shas) else None
 
 

@@ -20,8 +20,9 @@ import torch
 
 from ..augment import LinkGroups, draw_dropped, draw_link_scales, link_groups
 from ..errors import MerError
+from ..finite import require_finite
 from ..fk import SkeletonTensors, skeleton_tensors
-from ..motion_io import decompress_motion, parse_lafan1
+from ..motion_io import decompress_motion, parse_lafan1, read_motion_file
 from ..registry import Robot, load_robot
 from ..resample import resample
 from ..skeleton import KEYPOINTS, Skeleton
@@ -140,9 +141,9 @@ def process_clip(ctx: BuildContext, task: ClipTask) -> ClipResult:
     path = Path(task.path)
     record: dict = {"clip": task.clip, "file": path.name, "sha256": "", "fps_in": cfg.fps, "status": "failed"}
     try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        record["error"] = f"{path}: cannot read ({exc.strerror})"
+        raw = read_motion_file(path)
+    except MerError as exc:
+        record["error"] = str(exc)
         return ClipResult(task, record, None)
     record["sha256"] = sha256_bytes(raw)
     key = piece_key(ctx.metas[task.part].build_id, task.robot, task.clip, record["sha256"])
@@ -159,6 +160,8 @@ def process_clip(ctx: BuildContext, task: ClipTask) -> ClipResult:
         record["error"] = str(exc)
         return ClipResult(task, record, None)
     record["frames_in"] = motion.num_frames
+    if motion.warnings:
+        record["warnings"] = list(motion.warnings)
     motion = resample(motion, cfg.out_fps)
     record["frames"] = motion.num_frames
     starts = window_starts(motion.num_frames, cfg.window, cfg.stride)
@@ -169,6 +172,12 @@ def process_clip(ctx: BuildContext, task: ClipTask) -> ClipResult:
         return ClipResult(task, record, None)
     record["status"] = "ok"
     wb = make_windows(motion, ctx.skeleton(task.robot), starts, cfg.window, st=ctx.tensors(task.robot))
+    try:
+        require_finite({"pos": wb.pos, "q": wb.q, "base_rotvec": wb.base_rotvec, "origin_xy": wb.origin_xy},
+                       path=path, what="shard windows")  # fmt: skip
+    except MerError as exc:
+        record.update(status="failed", error=str(exc))
+        return ClipResult(task, record, None)
     n = len(wb)
     rows = {
         "pos": wb.pos, "q": wb.q, "base_rotvec": wb.base_rotvec, "origin_xy": wb.origin_xy,

@@ -13,6 +13,7 @@ from typing import Sequence
 
 from ..errors import ShardBuildError
 from ..motion_io import motion_suffixes
+from ..safe_io import check_regular_file
 
 log = logging.getLogger(__name__)
 
@@ -79,7 +80,11 @@ def resolve_input(spec: str, robots: Sequence[str]) -> Path:
 
 
 def discover_clips(root: Path, robots: Sequence[str]) -> dict[str, dict[str, Path]]:
-    """robot -> clip name -> file, for the given robots (sorted by clip name)."""
+    """robot -> clip name -> file, for the given robots (sorted by clip name).
+
+    A ``.csv``/``.csv.gz`` entry that is not a regular file (a directory, a FIFO, a dangling link,
+    a link loop) is refused here, before anything is read, with the same message as everywhere.
+    """
     out: dict[str, dict[str, Path]] = {}
     for robot in robots:
         folder = root / robot
@@ -93,8 +98,11 @@ def discover_clips(root: Path, robots: Sequence[str]) -> dict[str, dict[str, Pat
         clips: dict[str, Path] = {}
         for p in sorted(folder.iterdir()):
             name = clip_name(p)
-            if name is None or not p.is_file():
+            if name is None:
                 continue
+            check_regular_file(
+                p, ShardBuildError, fix="remove it or replace it with the clip's .csv/.csv.gz file; mer reads only regular files"
+            )
             if name in clips:
                 raise ShardBuildError(
                     f"clip {name!r} is there twice ({clips[name].name} and {p.name})",

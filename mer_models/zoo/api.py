@@ -163,7 +163,11 @@ def resolve(spec: str | Path, revision: str | None = None, registry: Registry | 
     reg = _registry(registry)
     text = str(spec)
     p = Path(text).expanduser()
-    if p.is_dir():
+    try:
+        local = p.is_dir()
+    except (OSError, ValueError):  # a name the file system refuses (e.g. over 255 bytes): not a folder
+        local = False
+    if local:
         if revision is not None:
             raise ModelZooError(f"{text} is a local folder; --revision applies to zoo names and Hub ids only", element="revision")
         return Resolved(p, "local", "none")

@@ -1,0 +1,73 @@
+"""Limits on untrusted input: one place, one table (documented in docs/robots.md and docs/shards.md).
+
+Every limit has a default far above any real file (the figures of the real data are in the docs)
+and can be raised with an environment variable of the same name, e.g. ``MER_MAX_URDF_BYTES=200000000``.
+Past a limit the reader raises the package's own error, with the number found, the limit, and the
+variable that raises it. Values are read when checked, so a test or a caller can change them.
+
+Plausibility bounds on values (:data:`MAX_LENGTH_M`, :data:`MAX_NUMBER`) are not limits on size:
+they keep every computed output finite, and are not configurable.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+__all__ = ["Limit", "LIMITS", "limit", "too_big", "MAX_LENGTH_M", "MAX_NUMBER"]
+
+#: Largest length accepted in a URDF origin, collision shape or key-point offset [m].
+MAX_LENGTH_M = 1e3
+#: Largest magnitude of any other number read from a URDF (angles, limits, axes, mimic factors).
+MAX_NUMBER = 1e6
+
+
+@dataclass(frozen=True)
+class Limit:
+    """A named limit: the environment variable that sets it, its default and what it counts."""
+
+    name: str
+    default: int
+    unit: str
+    what: str
+
+    @property
+    def value(self) -> int:
+        raw = os.environ.get(self.name)
+        if raw is None:
+            return self.default
+        try:
+            v = int(float(raw))
+        except ValueError:
+            return self.default
+        return v if v > 0 else self.default
+
+
+LIMITS: dict[str, Limit] = {
+    lim.name: lim
+    for lim in (
+        Limit("MER_MAX_URDF_BYTES", 32 * 2**20, "bytes", "size of a URDF file"),
+        Limit("MER_MAX_URDF_ELEMENTS", 10_000, "elements", "number of <link> (or of <joint>) elements in a URDF"),
+        Limit("MER_MAX_XML_DEPTH", 64, "levels", "nesting depth of XML elements in a URDF"),
+        Limit("MER_MAX_URDF_LINE_BYTES", 2**20, "bytes", "length of one line of a URDF"),
+        Limit("MER_MAX_CARD_BYTES", 2**20, "bytes", "size of a robot card or key-point file"),
+        Limit("MER_MAX_MOTION_BYTES", 256 * 2**20, "bytes", "size of a motion CSV (after gunzip)"),
+        Limit("MER_MAX_CSV_LINE_BYTES", 64 * 2**10, "bytes", "length of one line of a motion CSV"),
+        Limit("MER_MAX_CONFIG_BYTES", 2**20, "bytes", "size of a checkpoint's config.json"),
+        Limit("MER_MAX_MODEL_PARAMETERS", 500_000_000, "parameters", "parameters of a model built from a config"),
+    )
+}
+
+
+def limit(name: str) -> int:
+    """The current value of the limit ``name`` (its environment variable, else the default)."""
+    return LIMITS[name].value
+
+
+def too_big(name: str, found: int | str) -> tuple[str, str]:
+    """(message, fix) for an input past the limit ``name``: the number, the limit, how to raise it."""
+    lim = LIMITS[name]
+    shown = f"{found:,}" if isinstance(found, int) else found
+    message = f"{lim.what} is {shown} {lim.unit}, over mer's limit of {lim.value:,} {lim.unit}"
+    fix = f"if the input is genuine, raise the limit: set {lim.name}=N in the environment (default {lim.default:,})"
+    return message, fix
