@@ -187,13 +187,38 @@ def urdf_trees(draw) -> bytes:
     return text.encode(codec)
 
 
+VALID_NUMS = st.sampled_from(["0 0 0", "0.1 0 -0.2", "0 0 1", "0.3 -0.2 0.5", "3.14159 0 0", "0 0 1e3", "1e-9 0 0",
+                              "0 0 -1e3", "-1e3 1e3 1e3"])  # fmt: skip
+AXES = st.sampled_from(["0 0 1", "1 0 0", "0 1 0", "0.3 -0.2 0.5", "1e-6 0 0", "1e6 1e6 0", "0 0 -1"])
+
+
+@st.composite
+def urdf_valid_trees(draw) -> bytes:
+    """Well-formed trees (each joint's parent is an earlier link) with drawn types and values."""
+    n = draw(st.integers(1, 12))
+    out = ['<robot name="t">'] + [f'<link name="l{i}"/>' for i in range(n)]
+    for i in range(1, n):
+        jt = draw(st.sampled_from(["revolute", "continuous", "fixed", "revolute", "continuous", "revolute"]))
+        lo, hi = sorted(draw(st.lists(st.sampled_from([-1e6, -3.0, -0.5, 0.0, 0.5, 3.0, 1e6]), min_size=2, max_size=2)))
+        mimic = f'<mimic joint="j{draw(st.integers(1, n - 1))}" multiplier="{draw(st.sampled_from(["1", "-1", "1e6"]))}"/>' \
+            if draw(st.integers(0, 9)) == 0 else ""  # fmt: skip
+        out.append(
+            f'<joint name="j{i}" type="{jt}"><parent link="l{draw(st.integers(0, i - 1))}"/><child link="l{i}"/>'
+            f'<origin xyz="{draw(VALID_NUMS)}" rpy="{draw(VALID_NUMS)}"/><axis xyz="{draw(AXES)}"/>'
+            f'<limit lower="{lo}" upper="{hi}"/>{mimic}</joint>'
+        )
+    return ("\n".join(out) + "\n</robot>").encode()
+
+
 @st.composite
 def urdf_inputs(draw) -> bytes:
-    kind = draw(st.sampled_from(["bytes", "tree", "tree", "mutate"]))
+    kind = draw(st.sampled_from(["bytes", "tree", "valid", "valid", "mutate"]))
     if kind == "bytes":
         return draw(st.binary(max_size=2048))
     if kind == "tree":
         return draw(urdf_trees())
+    if kind == "valid":
+        return draw(urdf_valid_trees())
     data = VALID_URDF
     for _ in range(draw(st.integers(1, 5))):
         pos = draw(st.integers(0, len(data)))
