@@ -6,6 +6,9 @@ Built-in robots ship inside the package (``mer_data/robots/<name>/``). User robo
 
 Registration is atomic: the new entry is written and validated in a temporary folder beside the
 registry and renamed into place; a failure or an interruption leaves no half-written entry.
+Registrations may run concurrently in several processes: each temporary folder names its owner, and
+the sweep of leftovers removes only those of processes that are gone. ``force`` replaces an entry
+in one atomic exchange (Linux), or in two renames that are undone if the process dies between them.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ import threading
 from dataclasses import dataclass
 from pathlib import Path
 
-from .atomic import atomic_dir
+from .atomic import atomic_dir, recover_dir, sweep_stale, trash_dir
 from .errors import RegistryError, RobotCardError, RobotExistsError, UnknownRobotError
 from .robot_card import RobotCard, dump_card, load_card
 from .skeleton import Skeleton
@@ -107,7 +110,7 @@ def _folder_of(name: str) -> tuple[Path, bool]:
         return _BUILTIN_DIR / name, True
     validate_robot_name(name)
     folder = robots_dir() / name
-    if (folder / CARD_FILE).is_file():
+    if (folder / CARD_FILE).is_file() or (recover_dir(folder) and (folder / CARD_FILE).is_file()):
         return folder, False
     raise UnknownRobotError(
         f"unknown robot {name!r}; known robots: {', '.join(known_names())}",
@@ -160,13 +163,14 @@ def list_robots() -> list[Robot]:
 
 
 def _sweep_stale() -> None:
-    """Remove leftovers of interrupted registrations (``.tmp-*`` / ``.old-*`` folders)."""
+    """Recover interrupted replacements and remove leftovers of registrations whose process is gone.
+
+    Temporary folders of registrations still running (in this or another process) are kept.
+    """
     d = robots_dir()
-    if not d.is_dir():
-        return
-    for p in d.iterdir():
-        if p.name.startswith((".tmp-", ".old-")) and p.is_dir():
-            shutil.rmtree(p, ignore_errors=True)
+    if d.is_dir():
+        for p in sweep_stale(d):
+            log.info("removed the leftover %s of an interrupted registration", p.name)
 
 
 def write_robot(
@@ -205,7 +209,13 @@ def write_robot(
         parsed["urdf"] = load_urdf(tmp / urdf_name)
         build_skeleton(parsed["urdf"], load_card(tmp / CARD_FILE))
 
-    atomic_dir(final, write)
+    try:
+        atomic_dir(final, write, replace=force)
+    except FileExistsError:
+        raise RobotExistsError(
+            f"robot {name!r} was registered by another process meanwhile (at {final})",
+            fix="pass --force to replace it, or choose another name",
+        ) from None
     urdf = parsed["urdf"]
     return load_robot(name), urdf
 
@@ -215,7 +225,8 @@ def unregister_robot(name: str) -> Path:
     if name in BUILTIN_ROBOTS:
         raise RegistryError(f"{name!r} is a built-in robot and cannot be unregistered")
     folder, _ = _folder_of(name)
-    trash = folder.parent / f".old-{name}-{os.getpid()}"
-    os.rename(folder, trash)  # atomic: the name disappears at once
-    shutil.rmtree(trash, ignore_errors=True)
+    try:
+        trash_dir(folder)  # atomic: the name disappears at once
+    except FileNotFoundError:
+        raise UnknownRobotError(f"robot {name!r} was unregistered by another process meanwhile") from None
     return folder

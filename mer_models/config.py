@@ -89,12 +89,16 @@ class ModelConfig:
         for name in ("sigma_data", "pos_scale", "vel_scale"):
             _check(float(getattr(self, name)) > 0, c, name, "must be > 0")
         _check_finite(self)
+
+    def check_size(self) -> None:
+        """Refuse (ConfigError) a network over ``MER_MAX_MODEL_PARAMETERS`` before it is allocated."""
         n = self.estimated_parameters
         if n > limit("MER_MAX_MODEL_PARAMETERS"):
             msg, fix = too_big("MER_MAX_MODEL_PARAMETERS", n)
             raise ConfigError(
-                f"{msg} (hidden={self.hidden}, layers={self.layers}, ffn={self.ffn}); nothing was built",
-                element=f"{c}.layers",
+                f"{msg} (hidden={self.hidden}, layers={self.layers}, ffn={self.ffn}, "
+                f"cross_heads_per_condition={self.cross_heads_per_condition}); nothing was built",
+                element="ModelConfig.layers",
                 fix=fix,
             )
 
@@ -302,4 +306,6 @@ def from_dict(data: Mapping[str, Any]) -> RunConfig:
         )
     if not isinstance(data["name"], str):
         raise ConfigError("name must be a string", element="name")
-    return RunConfig(name=data["name"], **{k: _section(cls, data[k], k) for k, cls in _SECTIONS.items()})
+    run = RunConfig(name=data["name"], **{k: _section(cls, data[k], k) for k, cls in _SECTIONS.items()})
+    run.model.check_size()
+    return run

@@ -80,6 +80,7 @@ class RetargetModel(nn.Module):
 
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__()
+        cfg.check_size()  # an absurd configuration is refused before anything is allocated
         self.cfg = cfg
         self.net = RetargetNet(cfg)
 

@@ -54,3 +54,16 @@ def _quiet_third_party():
     for name in ("yourdfpy", "trimesh", "pytorch_kinematics"):
         logging.getLogger(name).setLevel(logging.ERROR)
     yield
+
+
+def pytest_terminal_summary(terminalreporter):
+    """How many generated inputs each fuzzed parser took, and the slowest (tests/test_fuzz_parsers.py)."""
+    try:
+        from fuzz_stats import summary_lines
+    except ImportError:
+        return
+    lines = summary_lines()
+    if lines:
+        terminalreporter.write_sep("-", "fuzz: every input loaded or raised MerError")
+        for line in lines:
+            terminalreporter.write_line(line)

@@ -90,8 +90,10 @@ def test_malformed_config_fields_are_errors_not_tracebacks(capsys, tmp_path, ckp
 
 
 def test_a_huge_model_is_refused_before_anything_is_allocated():
+    from mer_models.model import RetargetModel
+
     with pytest.raises(ConfigError, match="MER_MAX_MODEL_PARAMETERS"):
-        ModelConfig(layers=1_000_000)
+        RetargetModel(ModelConfig(layers=1_000_000))
     assert ModelConfig().estimated_parameters < 20_000_000
 
 

@@ -29,6 +29,7 @@ import torch
 
 from ..atomic import atomic_write
 from ..errors import MerError, ShardBuildError, ShardFormatError
+from ..locks import hold_locks
 from ..motion_io import read_motion_file
 from .card import write_card
 from .clips import BuildContext, ClipResult, ClipTask, process_clip
@@ -137,8 +138,9 @@ def build_shards(
         progress: called as ``progress(done_clips, total_clips, result)``.
 
     Raises:
-        ShardBuildError: bad input folder, a foreign build in ``out``, or a failing clip without
-            ``keep_going`` (no shard of that clip's file is written).
+        ShardBuildError: bad input folder, a foreign build in ``out``, another live build writing
+            the same shard files into ``out`` (each file is locked by ``OUT/.<file>.lock``), or a
+            failing clip without ``keep_going`` (no shard of that clip's file is written).
         UnknownRobotError, MotionFormatError, SplitError: unknown robot, robot without a LAFAN1
             layout, split that does not fit the clips.
     """
@@ -146,6 +148,15 @@ def build_shards(
     cfg, out = config, Path(out)
     plan = plan_build(cfg, out, shard_index)
     out.mkdir(parents=True, exist_ok=True)
+    names = [p.final.name for p in plan.parts.values()]
+    with hold_locks(out, names, ShardBuildError):  # a second build of the same files is refused
+        return _build(cfg, out, plan, t0, workers=workers, shard_index=shard_index, keep_going=keep_going,
+                      progress=progress)  # fmt: skip
+
+
+def _build(cfg: BuildConfig, out: Path, plan, t0: float, *, workers: int, shard_index: int | None, keep_going: bool,
+           progress: Progress | None) -> BuildReport:  # fmt: skip
+    """The build proper, with the locks of its files held (see :func:`build_shards`)."""
     check_out(out, plan.build_id, {p.final.name for p in plan.parts.values()})
     clean_temp(out, list(plan.parts.values()))
 

@@ -1,0 +1,315 @@
+"""Fuzzing the three parsers of untrusted input with hypothesis: the motion CSV reader, the URDF loader
+(with the skeleton built from it) and the checkpoint loader.
+
+Every generated input must either load or raise the package's own error type (``MerError``) --
+never another exception -- within a time and memory bound. The runs are derandomized (the same
+inputs in CI every time) and bounded in examples; ``MER_FUZZ_EXAMPLES=N`` runs N per parser.
+Statistics (inputs tried, accepted, refused, the slowest) are printed at the end of the session.
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+import os
+import resource
+import shutil
+import time
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from urdf_factory import humanoid
+
+import mer_models
+from fuzz_stats import STATS
+from mer_data.errors import MerError
+from mer_data.motion_io import decompress_motion, parse_lafan1, write_lafan1_csv
+from mer_data.robot_card import RobotCard
+from mer_data.skeleton_builder import build_skeleton
+from mer_data.synthetic import walking_motion
+from mer_data.urdf import parse_urdf_bytes
+from mer_models.checkpoint import load_checkpoint
+
+EXAMPLES = int(os.environ.get("MER_FUZZ_EXAMPLES", "0"))
+TIME_BOUND_S = 5.0  # per input (the slowest seen is ~0.1 s)
+MEMORY_BOUND = 256 * 2**20  # Python + numpy allocations per input [bytes]
+BUNDLED = Path(mer_models.__file__).parent / "bundled" / "mer-tiny-synthetic"
+
+
+def fuzz_settings(n: int):
+    return settings(
+        max_examples=EXAMPLES or n,
+        deadline=None,  # the bound is asserted below, with the input that broke it
+        derandomize=True,
+        database=None,
+        suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.function_scoped_fixture],
+    )
+
+
+def _run(parser: str, fn, data, *, memory: bool = True):
+    """Call ``fn(data)``: it must return or raise MerError, within the bounds; record the statistics."""
+    s = STATS.setdefault(parser, {"inputs": 0, "loaded": 0, "refused": 0, "slowest_s": 0.0, "slowest_input": ""})
+    if memory:
+        tracemalloc.start()
+    t0 = time.perf_counter()
+    try:
+        fn(data)
+        s["loaded"] += 1
+    except MerError:
+        s["refused"] += 1
+    finally:
+        elapsed = time.perf_counter() - t0
+        peak = tracemalloc.get_traced_memory()[1] if memory else 0
+        if memory:
+            tracemalloc.stop()
+        s["inputs"] += 1
+        if elapsed > s["slowest_s"]:
+            s["slowest_s"] = elapsed
+            s["slowest_input"] = repr(data)[:120]
+    assert elapsed < TIME_BOUND_S, f"{parser} took {elapsed:.2f} s on {repr(data)[:200]}"
+    assert peak < MEMORY_BOUND, f"{parser} allocated {peak / 2**20:.0f} MiB on {repr(data)[:200]}"
+
+
+# ---- motion CSV -----------------------------------------------------------------------------
+
+def _valid_csv() -> bytes:
+    m = walking_motion("g1", 0.4)
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as d:
+        return write_lafan1_csv(Path(d) / "w.csv", m).read_bytes()
+
+
+VALID_CSV = _valid_csv()
+CELLS = st.sampled_from(
+    ["0", "1.5", "-0.000000", "1e30", "-1e308", "nan", "inf", "-inf", "", " ", "abc", "1,2", "0x10", "1e-320",
+     "99999999999999999999999", "+2", " 3.25 ", "1.000000", "\x00", "\u00e9", "1_000", "1e", "."]
+)  # fmt: skip
+
+
+@st.composite
+def csv_inputs(draw) -> bytes:
+    kind = draw(st.sampled_from(["bytes", "mutate", "cells", "rows"]))
+    if kind == "bytes":
+        return draw(st.binary(max_size=2048))
+    if kind == "cells":  # rows of drawn cells, of drawn lengths
+        rows = draw(st.lists(st.lists(CELLS, min_size=30, max_size=40), min_size=1, max_size=6))
+        end = draw(st.sampled_from(["\n", "\r\n", ""]))
+        return (end or "\n").join(",".join(r) for r in rows).encode("utf-8", "surrogatepass") + end.encode()
+    lines = VALID_CSV.split(b"\n")[: draw(st.integers(1, 12))]
+    data = b"\n".join(lines) + b"\n"
+    if kind == "rows":  # valid rows, one cell replaced
+        i = draw(st.integers(0, len(lines) - 1))
+        cells = lines[i].split(b",")
+        cells[draw(st.integers(0, len(cells) - 1))] = draw(CELLS).encode("utf-8", "surrogatepass")
+        lines[i] = b",".join(cells)
+        data = b"\n".join(lines) + b"\n"
+    for _ in range(draw(st.integers(0 if kind == "rows" else 1, 4))):  # byte-level edits
+        pos = draw(st.integers(0, len(data)))
+        op = draw(st.sampled_from(["insert", "delete", "replace"]))
+        chunk = draw(st.binary(min_size=1, max_size=8))
+        if op == "insert":
+            data = data[:pos] + chunk + data[pos:]
+        elif op == "delete":
+            data = data[:pos] + data[pos + len(chunk) :]
+        else:
+            data = data[:pos] + chunk + data[pos + len(chunk) :]
+    if draw(st.booleans()):
+        data = b"\xef\xbb\xbf" + data
+    return data
+
+
+def _read_csv(data: bytes) -> None:
+    m = parse_lafan1(data, "g1", path="fuzz.csv")
+    assert np.isfinite(m.base_pos).all() and np.isfinite(m.joints).all() and np.isfinite(m.base_quat).all()
+
+
+@fuzz_settings(300)
+@given(data=csv_inputs())
+def test_fuzz_motion_csv_reader(data):
+    _run("motion CSV", _read_csv, data)
+
+
+@st.composite
+def gz_inputs(draw) -> bytes:
+    whole_rows = b"\n".join(VALID_CSV.split(b"\n")[:3]) + b"\n"
+    body = gzip.compress(draw(st.sampled_from([whole_rows, whole_rows, b"", b"0" * 5000])), mtime=0)
+    for _ in range(draw(st.integers(0, 3))):
+        pos = draw(st.integers(0, len(body)))
+        body = body[:pos] + draw(st.binary(min_size=0, max_size=6)) + body[pos + draw(st.integers(0, 6)) :]
+    return body
+
+
+@fuzz_settings(100)
+@given(data=gz_inputs())
+def test_fuzz_motion_gzip(data):
+    _run("motion CSV (.gz)", lambda d: _read_csv(decompress_motion(d, "fuzz.csv.gz")), data)
+
+
+# ---- URDF -----------------------------------------------------------------------------------
+
+VALID_URDF = humanoid().xml().encode()
+NAMES = st.sampled_from(["a", "b", "c", "d", "base", "", "a b", "\u00e9", "x" * 40])
+NUMS = st.sampled_from(["0", "1", "-1", "0.5 0 0", "0 0 1", "1 2", "1e308 0 0", "nan 0 0", "inf", "", "a b c",
+                        "1e3 0 0", "0 0 1e-300", "3.14159 0 0", "1e6", "-1e7", "0 0 0 0"])  # fmt: skip
+TYPES = st.sampled_from(["revolute", "continuous", "prismatic", "fixed", "floating", "planar", "hinge", ""])
+
+
+@st.composite
+def urdf_trees(draw) -> bytes:
+    """Random documents of links and joints with drawn names, types and numbers."""
+    links = draw(st.lists(NAMES, min_size=0, max_size=6))
+    out = ['<?xml version="1.0"?>', f'<robot name="{draw(NAMES)}">']
+    for name in links:
+        geo = draw(st.sampled_from(["", f'<collision><geometry><box size="{draw(NUMS)}"/></geometry></collision>',
+                                    f'<collision><origin xyz="{draw(NUMS)}"/><geometry><sphere radius="{draw(NUMS)}"/></geometry></collision>',
+                                    f'<inertial><mass value="{draw(NUMS)}"/></inertial>']))  # fmt: skip
+        out.append(f'<link name="{name}">{geo}</link>')
+    for i in range(draw(st.integers(0, 7))):
+        parts = [f'<joint name="{draw(NAMES)}{i}" type="{draw(TYPES)}">']
+        parts.append(f'<parent link="{draw(NAMES)}"/><child link="{draw(NAMES)}"/>')
+        if draw(st.booleans()):
+            parts.append(f'<origin xyz="{draw(NUMS)}" rpy="{draw(NUMS)}"/>')
+        if draw(st.booleans()):
+            parts.append(f'<axis xyz="{draw(NUMS)}"/>')
+        if draw(st.booleans()):
+            parts.append(f'<limit lower="{draw(NUMS)}" upper="{draw(NUMS)}" effort="1" velocity="1"/>')
+        if draw(st.booleans()):
+            parts.append(f'<mimic joint="{draw(NAMES)}{draw(st.integers(0, 7))}" multiplier="{draw(NUMS)}"/>')
+        out.append("".join(parts) + "</joint>")
+    out.append("</robot>")
+    text = "\n".join(out)
+    codec = draw(st.sampled_from(["utf-8", "utf-8", "utf-8", "utf-16", "utf-8-sig"]))
+    return text.encode(codec)
+
+
+VALID_NUMS = st.sampled_from(["0 0 0", "0.1 0 -0.2", "0 0 1", "0.3 -0.2 0.5", "3.14159 0 0", "0 0 1e3", "1e-9 0 0",
+                              "0 0 -1e3", "-1e3 1e3 1e3"])  # fmt: skip
+AXES = st.sampled_from(["0 0 1", "1 0 0", "0 1 0", "0.3 -0.2 0.5", "1e-6 0 0", "1e6 1e6 0", "0 0 -1"])
+
+
+@st.composite
+def urdf_valid_trees(draw) -> bytes:
+    """Well-formed trees (each joint's parent is an earlier link) with drawn types and values."""
+    n = draw(st.integers(1, 12))
+    out = ['<robot name="t">'] + [f'<link name="l{i}"/>' for i in range(n)]
+    for i in range(1, n):
+        jt = draw(st.sampled_from(["revolute", "continuous", "fixed", "revolute", "continuous", "revolute"]))
+        lo, hi = sorted(draw(st.lists(st.sampled_from([-1e6, -3.0, -0.5, 0.0, 0.5, 3.0, 1e6]), min_size=2, max_size=2)))
+        mimic = f'<mimic joint="j{draw(st.integers(1, n - 1))}" multiplier="{draw(st.sampled_from(["1", "-1", "1e6"]))}"/>' \
+            if draw(st.integers(0, 9)) == 0 else ""  # fmt: skip
+        out.append(
+            f'<joint name="j{i}" type="{jt}"><parent link="l{draw(st.integers(0, i - 1))}"/><child link="l{i}"/>'
+            f'<origin xyz="{draw(VALID_NUMS)}" rpy="{draw(VALID_NUMS)}"/><axis xyz="{draw(AXES)}"/>'
+            f'<limit lower="{lo}" upper="{hi}"/>{mimic}</joint>'
+        )
+    return ("\n".join(out) + "\n</robot>").encode()
+
+
+@st.composite
+def urdf_inputs(draw) -> bytes:
+    kind = draw(st.sampled_from(["bytes", "tree", "valid", "valid", "mutate"]))
+    if kind == "bytes":
+        return draw(st.binary(max_size=2048))
+    if kind == "tree":
+        return draw(urdf_trees())
+    if kind == "valid":
+        return draw(urdf_valid_trees())
+    data = VALID_URDF
+    for _ in range(draw(st.integers(1, 5))):
+        pos = draw(st.integers(0, len(data)))
+        chunk = draw(st.one_of(st.binary(min_size=1, max_size=8), st.sampled_from(
+            [b"<!DOCTYPE r>", b"<!ENTITY e 'x'>", b"&e;", b"<a>" * 70, b"</link>", b'"', b"1e308", b"\x00"])))  # fmt: skip
+        cut = draw(st.integers(0, 8))
+        data = data[:pos] + chunk + data[pos + cut :]
+    return data
+
+
+def _load_urdf(data: bytes) -> None:
+    urdf = parse_urdf_bytes(data, "fuzz.urdf")
+    skel = build_skeleton(urdf, RobotCard(name="fuzz", urdf="fuzz.urdf", keypoints={}))
+    for a in (skel.offsets, skel.axes, skel.lower, skel.upper, skel.rest_rotations):
+        assert np.isfinite(a).all()
+
+
+@fuzz_settings(300)
+@given(data=urdf_inputs())
+def test_fuzz_urdf_loader(data):
+    _run("URDF loader", _load_urdf, data)
+
+
+# ---- checkpoint -----------------------------------------------------------------------------
+
+CONFIG = json.loads((BUNDLED / "config.json").read_text())
+WEIGHTS = (BUNDLED / "model.safetensors").read_bytes()
+VALUES = st.one_of(
+    st.sampled_from([None, True, 0, -1, 1, 2, 3, 7, 10**6, 10**12, 0.0, -0.5, 1e308, float("inf"), float("nan"), "", "x",
+                     [], {}, [1, 2], {"a": 1}]),
+    st.integers(-(10**20), 10**20),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.text(max_size=8),
+)  # fmt: skip
+
+
+def _paths(obj, prefix=()):
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            yield prefix + (k,)
+            yield from _paths(v, prefix + (k,))
+
+
+PATHS = list(_paths(CONFIG))
+
+
+@st.composite
+def checkpoint_inputs(draw) -> tuple[bytes, bytes]:
+    cfg = json.loads(json.dumps(CONFIG))
+    for _ in range(draw(st.integers(0, 3))):
+        path = draw(st.sampled_from(PATHS))
+        node = cfg
+        try:
+            for k in path[:-1]:
+                node = node[k]
+            if draw(st.integers(0, 4)) == 0:
+                node.pop(path[-1], None)
+            else:
+                node[path[-1]] = draw(VALUES)
+        except (KeyError, TypeError):
+            pass
+    text = json.dumps(cfg)
+    if draw(st.integers(0, 5)) == 0:  # broken JSON text
+        pos = draw(st.integers(0, len(text)))
+        text = text[:pos] + draw(st.text(max_size=4)) + text[pos + draw(st.integers(0, 4)) :]
+    weights = WEIGHTS
+    wkind = draw(st.sampled_from(["same", "same", "truncate", "header", "bytes"]))
+    if wkind == "truncate":
+        weights = WEIGHTS[: draw(st.integers(0, len(WEIGHTS)))]
+    elif wkind == "header":
+        pos = draw(st.integers(0, 400))
+        weights = WEIGHTS[:pos] + draw(st.binary(min_size=1, max_size=8)) + WEIGHTS[pos + draw(st.integers(0, 8)) :]
+    elif wkind == "bytes":
+        weights = draw(st.binary(max_size=256))
+    return text.encode("utf-8", "surrogatepass"), weights
+
+
+@pytest.fixture(scope="module")
+def ckpt_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("fuzz") / "ckpt"
+    shutil.copytree(BUNDLED, d)
+    return d
+
+
+@fuzz_settings(120)
+@given(data=checkpoint_inputs())
+def test_fuzz_checkpoint_loader(data, ckpt_dir, monkeypatch):
+    monkeypatch.setenv("MER_MAX_MODEL_PARAMETERS", "20000000")  # the knob: above the paper model (~12 M), 80 MB
+    rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    (ckpt_dir / "config.json").write_bytes(data[0])
+    (ckpt_dir / "model.safetensors").write_bytes(data[1])
+    _run("checkpoint loader", lambda _: load_checkpoint(ckpt_dir), data, memory=False)  # torch memory: RSS below
+    grown = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - rss0) * 1024  # Linux: KiB
+    assert grown < MEMORY_BOUND, f"peak RSS grew by {grown / 2**20:.0f} MiB on {repr(data)[:200]}"
