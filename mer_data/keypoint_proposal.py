@@ -119,11 +119,12 @@ def _link_nodes(urdf: UrdfModel, skel) -> dict[str, int]:
     """Every link → the node that carries it."""
     out = {urdf.root: 0}
     node_of_link = {l: i for i, l in enumerate(skel.link_names) if skel.node_kinds[i] == "revolute"}
+    node_names = set(skel.node_names)
     stack = [urdf.root]
     while stack:
         link = stack.pop()
         for j in urdf.children_of(link):
-            out[j.child] = node_of_link.get(j.child, out[link]) if j.name in skel.node_names else out[link]
+            out[j.child] = node_of_link.get(j.child, out[link]) if j.name in node_names else out[link]
             stack.append(j.child)
     return out
 

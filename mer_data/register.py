@@ -13,7 +13,7 @@ from .errors import RobotCardError
 from .keypoint_proposal import KeypointProposal, propose_keypoints
 from .registry import Robot, validate_robot_name, write_robot
 from .robot_card import DEFAULT_BODY_PARTS, RobotCard, parse_keypoints
-from .safe_io import decode_utf8, read_regular_file
+from .safe_io import decode_utf8, read_regular_file, safe_yaml_load
 from .skeleton import KEYPOINTS
 from .skeleton_builder import build_skeleton
 from .urdf import load_urdf
@@ -77,7 +77,7 @@ def load_keypoints_file(path: str | Path) -> dict:
     raw = read_regular_file(path, RobotCardError, "MER_MAX_CARD_BYTES", fix="check the path given to --keypoints")
     text = decode_utf8(raw, path, RobotCardError)
     try:
-        data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
+        data = json.loads(text) if path.suffix == ".json" else safe_yaml_load(text)
     except (ValueError, yaml.YAMLError, RecursionError) as exc:
         raise RobotCardError(f"cannot parse the key point file: {str(exc)[:300]}", path=path) from None
     if isinstance(data, dict) and "keypoints" in data:

@@ -31,7 +31,7 @@ import yaml
 
 from .errors import RobotCardError
 from .limits import MAX_LENGTH_M
-from .safe_io import decode_utf8, read_regular_file
+from .safe_io import decode_utf8, read_regular_file, safe_yaml_load
 from .skeleton import KEYPOINTS, BodyPart
 
 __all__ = ["RobotCard", "KeypointSpec", "DEFAULT_BODY_PARTS", "load_card", "parse_card", "dump_card"]
@@ -94,7 +94,7 @@ def load_card(path: str | Path) -> RobotCard:
 
 def _load_yaml(text: str, path: str) -> Any:
     try:
-        return yaml.safe_load(text)
+        return safe_yaml_load(text)
     except RecursionError:
         raise RobotCardError("the YAML is nested too deeply", path=path, fix="repair the YAML structure") from None
     except yaml.YAMLError as exc:

@@ -16,11 +16,14 @@ import os
 import stat
 import zlib
 from pathlib import Path
+from typing import Any
+
+import yaml
 
 from .errors import MerError
 from .limits import limit, too_big
 
-__all__ = ["read_regular_file", "check_regular_file", "gunzip_limited", "decode_utf8"]
+__all__ = ["read_regular_file", "check_regular_file", "gunzip_limited", "decode_utf8", "safe_yaml_load"]
 
 _KINDS = (
     (stat.S_ISDIR, "a directory"),
@@ -158,3 +161,19 @@ def decode_utf8(data: bytes, path: str | Path, error: type[MerError]) -> str:
             line=line,
             fix="save the file as UTF-8",
         ) from None
+
+
+class _NoAliasLoader(yaml.SafeLoader):
+    """PyYAML's safe loader without aliases: ``*ref`` can expand a small file exponentially
+    (a "billion laughs"); nothing mer reads needs them."""
+
+    def compose_node(self, parent, index):  # type: ignore[override]
+        if self.check_event(yaml.AliasEvent):
+            mark = self.peek_event().start_mark
+            raise yaml.composer.ComposerError(None, None, "YAML aliases (*name) are not accepted", mark)
+        return super().compose_node(parent, index)
+
+
+def safe_yaml_load(text: str) -> Any:
+    """``yaml.safe_load`` that refuses aliases (raises ``yaml.YAMLError`` with the position)."""
+    return yaml.load(text, Loader=_NoAliasLoader)  # noqa: S506 - a SafeLoader subclass

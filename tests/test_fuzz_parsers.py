@@ -313,3 +313,20 @@ def test_fuzz_checkpoint_loader(data, ckpt_dir, monkeypatch):
     _run("checkpoint loader", lambda _: load_checkpoint(ckpt_dir), data, memory=False)  # torch memory: RSS below
     grown = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - rss0) * 1024  # Linux: KiB
     assert grown < MEMORY_BOUND, f"peak RSS grew by {grown / 2**20:.0f} MiB on {repr(data)[:200]}"
+
+
+def test_yaml_aliases_are_refused_in_cards_and_key_point_files(tmp_path):
+    """A "billion laughs" in YAML: nine levels of aliases expand 1 KB to 10^9 entries."""
+    from mer_data.errors import MerError
+    from mer_data.register import load_keypoints_file
+    from mer_data.robot_card import parse_card
+
+    lines = ['a0: &a0 ["x","x","x","x","x","x","x","x","x","x"]']
+    lines += [f"a{i}: &a{i} [" + ",".join([f"*a{i - 1}"] * 10) + "]" for i in range(1, 10)]
+    bomb = "\n".join(lines) + "\n"
+    with pytest.raises(MerError, match="alias"):
+        parse_card(bomb, "card.yaml")
+    f = tmp_path / "kp.yaml"
+    f.write_text("keypoints:\n  base: &b {link: x}\n  left_hip: *b\n")
+    with pytest.raises(MerError, match="alias"):
+        load_keypoints_file(f)
