@@ -218,7 +218,7 @@ def evaluate(
     }
 
 
-_COLS = (("g_mpbpe", "E_g-mpbpe [m]"), ("mpboe", "E_mpboe [rad]"), ("mpbve", "E_mpbve [m/s]"), ("jerk_frame", "E_smooth [rad/fr^3]"), ("limit_violation", "limits"))
+_COLS = (("g_mpbpe", "E_g-mpbpe [m]"), ("mpboe", "E_mpboe [rad]"), ("mpbve", "E_mpbve [m/s]"), ("jerk_frame", "E_smooth [rad/fr^3]"), ("ref_jerk_frame", "source jerk"), ("limit_violation", "limits"))
 _GT_COLS = (("gt_mpbpe", "vs data: pos [m]"), ("gt_mpboe", "orient [rad]"), ("gt_mpbve", "vel [m/s]"))
 
 

@@ -146,6 +146,7 @@ def gauss_newton_ik(
         anc_o = torch.gather(own, 1, orows[..., None].expand(B, M, J)).to(dtype).repeat_interleave(3, dim=1)  # (B,3M,J)
         orow_node = orows.repeat_interleave(3, dim=1)
         col_of_row = torch.arange(3, device=dev).repeat(M)  # which column of R each row is
+    anc_rows = torch.cat([anc_p, anc_o], 1) if M else anc_p  # (B,R,J) which joints move each row
     lower = torch.gather(graph.lower, 1, cols)[:, None]
     upper = torch.gather(graph.upper, 1, cols)[:, None]
     nominal = torch.gather(graph.nominal, 1, cols)[:, None]
@@ -183,18 +184,19 @@ def gauss_newton_ik(
         qbar = _neighbour_mean(qd)
         cost = cost_fit + prior(qd, qbar)
         axes_w = (rot @ graph.axes[:, None, :, :, None]).squeeze(-1)  # (B,T,J,3) world joint axes
-        vec = kp[:, :, :, None, :] - pos[:, :, None, :, :]  # (B,T,K,J,3)
-        jac_rows = [torch.linalg.cross(axes_w[:, :, None].expand_as(vec), vec) * anc_p[:, None, :, :, None]]
+        # a_j x (p_k - p_j) = [a_j]x p_k - a_j x p_j; rotation columns: a_j x c_l = [a_j]x c_l
+        vecs = torch.cat([kp, ocols], 2) if M else kp  # (B,T,R,3)
+        jrows = torch.einsum("btjde,btre->btrdj", _skew(axes_w), vecs)  # (B,T,R,3,J)
+        jrows[:, :, :K] -= torch.linalg.cross(axes_w, pos).transpose(-1, -2)[:, :, None]
         res = [(kp - goals) * w_kp[..., None].sqrt()]
         jb = [torch.cat([torch.eye(3, dtype=dtype, device=dev).expand(B, T, K, 3, 3), -_skew(kp - pos[:, :, :1])], -1)]
         wr = [w_kp]
         if M:
-            oc = ocols[:, :, :, None, :].expand(B, T, 3 * M, J, 3)
-            jac_rows.append(torch.linalg.cross(axes_w[:, :, None].expand_as(oc), oc) * anc_o[:, None, :, :, None])
             res.append((ocols - gcols) * w_o[..., None].sqrt())
             jb.append(torch.cat([torch.zeros(B, T, 3 * M, 3, 3, dtype=dtype, device=dev), -_skew(ocols)], -1))
             wr.append(w_o)
-        jq = torch.einsum("btkmd,bmc->btkdc", torch.cat(jac_rows, 2), fold)  # (B,T,R,3,D)
+        jrows = jrows * anc_rows[:, None, :, None, :]
+        jq = (jrows.flatten(1, 3) @ fold).view(B, T, -1, 3, D)  # (B,T,R,3,D): mimic nodes folded into their sources
         jac = torch.cat([jq, torch.cat(jb, 2)], -1)  # (B,T,R,3,n)
         sw = torch.cat(wr, -1).sqrt()[..., None, None]  # (B,1,R,1,1)
         jw = (jac * sw).flatten(2, 3)  # (B,T,3R,n) weighted

@@ -18,7 +18,8 @@ Per window (then averaged over windows, reported as mean ± std):
   :func:`mer_data.scaling.orientation_goals`): how far each has turned from its robot's zero pose,
   compared with the reference's, hands calibrated for differing rest poses of the arms.
 * ``jerk`` [rad/s^3]: mean over frames and actuated joints of ``|d^3 q / dt^3|`` (third forward
-  difference times fps^3). ``jerk_frame`` is the same in rad/frame^3 (without fps^3), the scale of
+  difference times fps^3). ``ref_jerk_frame``: the reference motion's own, for scale (a retarget
+  smoother than its source is not the goal). ``jerk_frame`` is the same in rad/frame^3 (without fps^3), the scale of
   the paper's ``E_smooth`` values.
 * ``limit_violation`` [fraction]: frames in which any actuated joint is outside its limits by more
   than 1e-6 rad.
@@ -44,7 +45,7 @@ from .kinematics import BatchGraph, batch_fk, graph_from_batch
 
 __all__ = ["METRICS", "GT_METRICS", "window_metrics", "summarize", "LIMIT_TOL"]
 
-METRICS = ("g_mpbpe", "mpboe", "mpbve", "jerk", "jerk_frame", "limit_violation")
+METRICS = ("g_mpbpe", "mpboe", "mpbve", "jerk", "jerk_frame", "ref_jerk_frame", "limit_violation")
 GT_METRICS = ("gt_mpbpe", "gt_mpboe", "gt_mpbve")
 LIMIT_TOL = 1e-6
 
@@ -104,8 +105,12 @@ def window_metrics(
         d3 = (q[:, 3:] - 3 * q[:, 2:-1] + 3 * q[:, 1:-2] - q[:, :-3]).abs()
         out["jerk_frame"] = _mean(d3, dof)
         out["jerk"] = out["jerk_frame"] * fps**3
+        rq = batch["reference"].to(dt)[..., 0]
+        r3 = (rq[:, 3:] - 3 * rq[:, 2:-1] + 3 * rq[:, 1:-2] - rq[:, :-3]).abs()
+        rg = graph_from_batch(batch, "ref")
+        out["ref_jerk_frame"] = _mean(r3, rg.dof)
     else:
-        out["jerk_frame"] = out["jerk"] = torch.full((B,), float("nan"), dtype=dt)
+        out["jerk_frame"] = out["jerk"] = out["ref_jerk_frame"] = torch.full((B,), float("nan"), dtype=dt)
     outside = (q < tg.lower[:, None] - LIMIT_TOL) | (q > tg.upper[:, None] + LIMIT_TOL)
     out["limit_violation"] = (outside & dof[:, None]).any(-1).to(dt).mean(-1)
     has = batch["has_target"]

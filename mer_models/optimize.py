@@ -10,8 +10,10 @@ robots and over frames through the foundation's FK. It is
 
 Stage 1 (always): Levenberg-Marquardt on key-point positions, base/feet/hand orientations, the
 nominal pose and a temporal smoothness prior (:func:`mer_models.ik.gauss_newton_ik`), projected
-onto the limits, from the nominal angles (or a warm start), the scaled reference's base trajectory
-and the reference's base orientation, stopping once every frame has converged.
+onto the limits, stopping once every frame has converged. Without a warm start it runs coarse to
+fine: every 4th frame from the nominal angles, the scaled reference's base trajectory and the
+reference's base orientation; then every frame from the interpolation of those key frames, which
+is close enough that a few iterations finish it (and neighbouring frames start in the same basin).
 
 Stage 2 (``iters > 0``, off by default): Adam on the whole energy, velocity terms included, with
 limits by construction (``q = lower + (upper - lower) sigmoid(z)``, ``R = R_1 Exp(omega)``, a
@@ -29,7 +31,7 @@ import math
 
 import torch
 
-from mer_data.rotations import axis_angle_to_matrix
+from mer_data.rotations import axis_angle_to_matrix, matrix_to_quat, quat_slerp, quat_to_matrix
 
 from .config import EnergyConfig
 from .edm import _logit_of, limit_clip
@@ -45,6 +47,26 @@ __all__ = ["optimize_motion", "DEFAULT_ITERS", "DEFAULT_GN_ITERS"]
 DEFAULT_ITERS = 0
 #: Most Levenberg-Marquardt iterations of stage 1 (it stops earlier once converged).
 DEFAULT_GN_ITERS = 30
+#: Coarse-to-fine warm start: every ``DEFAULT_STRIDE``-th frame is solved first, the rest start
+#: from the interpolated solution and get ``DEFAULT_REFINE_ITERS`` iterations (1: off).
+DEFAULT_STRIDE = 4
+DEFAULT_REFINE_ITERS = 8
+
+
+def _interpolate(coarse: dict[str, torch.Tensor], idx: torch.Tensor, T: int) -> dict[str, torch.Tensor]:
+    """Key-frame solutions at frames ``idx`` (K,) → every frame of 0..T-1: angles and base position
+    linear, base orientation slerped, between the neighbouring key frames."""
+    t = torch.arange(T, device=idx.device, dtype=coarse["q"].dtype)
+    hi = torch.searchsorted(idx, torch.arange(T, device=idx.device)).clamp(1, len(idx) - 1)
+    lo = hi - 1
+    w = ((t - idx[lo].to(t.dtype)) / (idx[hi] - idx[lo]).to(t.dtype)).clamp(0, 1)
+    out = {}
+    for k in ("q", "base_pos"):
+        a, b = coarse[k][:, lo], coarse[k][:, hi]
+        out[k] = a + (b - a) * w[None, :, None]
+    qa, qb = matrix_to_quat(coarse["base_rot"][:, lo]), matrix_to_quat(coarse["base_rot"][:, hi])
+    out["base_rot"] = quat_to_matrix(quat_slerp(qa, qb, w[None, :, None].expand(qa.shape[:2] + (1,)).squeeze(-1)))
+    return out
 
 
 def optimize_motion(
@@ -60,6 +82,8 @@ def optimize_motion(
     gn_iters: int = DEFAULT_GN_ITERS,
     smooth: float = DEFAULT_SMOOTH,
     tol: float = DEFAULT_TOL,
+    stride: int = DEFAULT_STRIDE,
+    refine_iters: int = DEFAULT_REFINE_ITERS,
     lr: float = 0.02,
     fps: float = 30.0,
     init: dict[str, torch.Tensor] | None = None,
@@ -76,6 +100,8 @@ def optimize_motion(
         iters: Adam iterations of stage 2 (0 skips it).
         gn_iters: at most this many Levenberg-Marquardt iterations of stage 1 (0 skips it).
         smooth, tol: stage 1's temporal prior weight and convergence tolerance (:mod:`mer_models.ik`).
+        stride, refine_iters: without ``init``, stage 1 first solves every ``stride``-th frame
+            (``gn_iters``), then all frames from the interpolation (at most ``refine_iters``).
         lr: step of the angle logits [1] and base rotation [rad]; the base position uses lr/5 [m].
         init: optional warm start ``{"q", "base_pos", "base_rot"}`` (e.g. a model's output).
         stats: receives ``gn_iterations``.
@@ -98,7 +124,17 @@ def optimize_motion(
             p0, r0 = init["base_pos"].clone(), init["base_rot"].clone()
         if gn_iters > 0:
             ik_stats: dict = {}
-            q0, p0, r0 = gauss_newton_ik(cfg, graph, eta, goal, q0, p0, r0, iters=gn_iters, smooth=smooth, tol=tol,
+            ik_iters = gn_iters
+            if init is None and stride > 1 and T >= 3 * stride:
+                # coarse to fine: key frames first (the prior spans `stride` frames there: weight / stride^2)
+                idx = torch.unique(torch.cat([torch.arange(0, T, stride), torch.tensor([T - 1])])).to(goal.device)
+                sub = {"goal_rot": None if goal_rot is None else goal_rot[:, idx], "rot_mask": rot_mask}
+                qk, pk, rk = gauss_newton_ik(cfg, graph, eta, goal[:, idx], q0[:, idx], p0[:, idx], r0[:, idx], iters=gn_iters,
+                                             smooth=smooth / stride**2, tol=tol, **sub)  # fmt: skip
+                warm = _interpolate({"q": qk, "base_pos": pk, "base_rot": rk}, idx, T)
+                q0, p0, r0 = warm["q"], warm["base_pos"], warm["base_rot"]
+                ik_iters = min(gn_iters, refine_iters)
+            q0, p0, r0 = gauss_newton_ik(cfg, graph, eta, goal, q0, p0, r0, iters=ik_iters, smooth=smooth, tol=tol,
                                          stats=ik_stats, **gkw)  # fmt: skip
             if stats is not None:
                 stats["gn_iterations"] = ik_stats["iterations"]

@@ -35,6 +35,7 @@ from .checkpoint import Checkpoint, check_robot, resolve_model
 from .config import EnergyConfig, SamplerConfig
 from .kinematics import graph_from_batch
 from .long_horizon import prepare_reference, retarget_sequence
+from .ik import DEFAULT_SMOOTH
 from .optimize import DEFAULT_GN_ITERS, DEFAULT_ITERS, optimize_motion
 from .writers import TargetMotion, check_motion_finite, write_csv, write_mcap, write_npz
 
@@ -86,7 +87,8 @@ def _reference_points(scaled: np.ndarray, shift: np.ndarray, eta: np.ndarray) ->
     return scaled[:, pairs] + shift
 
 
-def _optimize_sequence(feats, scaled, rot_goals, ref: Skeleton, target: Skeleton, eta, energy: EnergyConfig, fps, iters, gn_iters, device):
+def _optimize_sequence(feats, scaled, rot_goals, ref: Skeleton, target: Skeleton, eta, energy: EnergyConfig, fps, iters, gn_iters, device,
+                       smooth: float = DEFAULT_SMOOTH):
     from mer_data.samples import TrainingSample, collate
 
     batch = collate([TrainingSample(feats[:3].astype(np.float32), ref, target, eta)])
@@ -96,7 +98,8 @@ def _optimize_sequence(feats, scaled, rot_goals, ref: Skeleton, target: Skeleton
     eta_t = torch.from_numpy(eta.astype(np.float32))[None].to(device)
     goal_rot = torch.from_numpy(rot_goals[0]).float()[None].to(device)
     rot_mask = torch.from_numpy(rot_goals[1])[None].to(device)
-    out = optimize_motion(energy, g, eta_t, goal, rot, iters=iters, gn_iters=gn_iters, fps=fps, goal_rot=goal_rot, rot_mask=rot_mask)
+    out = optimize_motion(energy, g, eta_t, goal, rot, iters=iters, gn_iters=gn_iters, fps=fps, goal_rot=goal_rot, rot_mask=rot_mask,
+                        smooth=smooth)
     return {k: out[k][0].double().cpu().numpy() for k in ("q", "base_pos", "base_rot")}
 
 
@@ -114,13 +117,15 @@ def retarget_features(
     allow_unseen: bool = False,
     opt_iters: int = DEFAULT_ITERS,
     opt_gn_iters: int = DEFAULT_GN_ITERS,
+    opt_smooth: float = DEFAULT_SMOOTH,
     energy: EnergyConfig | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> RetargetResult:
     """Retarget source features (F, Jr, 9) (world frame, at ``fps``) to ``target``.
 
     ``checkpoint`` is required for ``diffusion``; ``steps``/``guidance`` override its sampler
-    configuration. ``allow_unseen`` retargets to a robot the model never saw (zero-shot; the
+    configuration. ``opt_*`` and ``energy`` set the optimiser (``opt_smooth``: its temporal prior,
+    :mod:`mer_models.ik`). ``allow_unseen`` retargets to a robot the model never saw (zero-shot; the
     paper fine-tunes instead).
     """
     if method not in METHODS:
@@ -147,7 +152,8 @@ def retarget_features(
         )  # fmt: skip
     else:
         device = next(checkpoint.model.parameters()).device if checkpoint is not None else torch.device("cpu")
-        out = _optimize_sequence(feats, scaled, rot_goals, ref, tgt, eta, energy or EnergyConfig(), fps, opt_iters, opt_gn_iters, device)
+        out = _optimize_sequence(feats, scaled, rot_goals, ref, tgt, eta, energy or EnergyConfig(), fps, opt_iters, opt_gn_iters, device,
+                                 smooth=opt_smooth)
         out["base_pos"] = out["base_pos"] + shift
     motion = TargetMotion(tgt, fps, out["q"], out["base_pos"], out["base_rot"])
     return RetargetResult(motion, _reference_points(scaled, shift, eta), method)

@@ -191,3 +191,30 @@ def test_orientation_metric_is_the_angle_to_the_goal():
     m = window_metrics({"q": q, "base_pos": bp, "base_rot": turned}, b)
     assert m["mpboe"][0] == pytest.approx(0.2, abs=1e-4)
     assert float(rotation_angle_between(turned, br).mean()) == pytest.approx(0.2, abs=1e-5)
+
+
+def test_coarse_to_fine_interpolation_passes_through_the_key_frames():
+    from mer_models.optimize import _interpolate
+
+    idx = torch.tensor([0, 4, 8, 9])
+    q = torch.randn(2, 4, 5, dtype=torch.float64)
+    p = torch.randn(2, 4, 3, dtype=torch.float64)
+    r = axis_angle_to_matrix(torch.randn(2, 4, 3, dtype=torch.float64) * 0.5)
+    out = _interpolate({"q": q, "base_pos": p, "base_rot": r}, idx, 10)
+    torch.testing.assert_close(out["q"][:, idx], q)
+    torch.testing.assert_close(out["base_rot"][:, idx], r)
+    torch.testing.assert_close(out["base_pos"][:, 2], (p[:, 0] + p[:, 1]) / 2)
+    half = rotation_angle_between(out["base_rot"][:, 2], r[:, 0])
+    torch.testing.assert_close(half, rotation_angle_between(r[:, 1], r[:, 0]) / 2)  # slerp: half-way
+
+
+def test_coarse_to_fine_start_is_as_accurate_as_solving_every_frame():
+    b = mixed_batch(("h1",), frames=60)
+    g = graph_from_batch(b, "tgt")
+    rot = axis_angle_to_matrix(b["reference"][:, :, 0, 0:3])
+    kw = {"goal_rot": b["ref_goal_rot"], "rot_mask": b["ref_rot_mask"]}
+    fine = optimize_motion(EnergyConfig(), g, b["joint_map"], b["ref_scaled_pos"], rot, stride=1, **kw)
+    c2f = optimize_motion(EnergyConfig(), g, b["joint_map"], b["ref_scaled_pos"], rot, **kw)
+    a, c = window_metrics(fine, b), window_metrics(c2f, b)
+    assert c["g_mpbpe"][0] < a["g_mpbpe"][0] * 1.1 + 1e-3
+    assert c["limit_violation"][0] == 0

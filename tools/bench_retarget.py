@@ -46,6 +46,7 @@ import logging
 import math
 import os
 import sys
+from dataclasses import replace
 import time
 from pathlib import Path
 
@@ -171,12 +172,12 @@ def row(target, method, frames, seconds, motion, feats, src, nodes, targets) -> 
     }
 
 
-def run_mer(feats, src, target, repeat):
-    retarget_features(feats[:16], src, target, method="optimize", fps=MODEL_FPS)  # untimed warm-up
+def run_mer(feats, src, target, repeat, **kw):
+    retarget_features(feats[:16], src, target, method="optimize", fps=MODEL_FPS, **kw)  # untimed warm-up
     best, res = math.inf, None
     for i in range(repeat):
         t0 = time.perf_counter()
-        res = retarget_features(feats, src, target, method="optimize", fps=MODEL_FPS)
+        res = retarget_features(feats, src, target, method="optimize", fps=MODEL_FPS, **kw)
         dt = time.perf_counter() - t0
         log.info("mer %s run %d/%d: %.3f s (%.1f frames/s)", target, i + 1, repeat, dt, len(feats) / dt)
         best = min(best, dt)
@@ -254,6 +255,9 @@ def main() -> None:
             log.warning("%s: key-point error %.5f m differs from g_mpbpe %.5f m (key-point order?)",
                         target, mer_row["kp_err"], mer_row["g_mpbpe"])  # fmt: skip
         rows.append(mer_row)
+        # mink's problem exactly: key-point positions + posture, no orientation, no temporal prior
+        res_p, sec_p = run_mer(feats, args.source, target, args.repeat, energy=replace(energy, w_ori=0.0), opt_smooth=0.0)
+        rows.append(row(target, "mer positions", F, sec_p, res_p.motion, feats, src, nodes, goals))
 
         if have_mink:
             mr = mink_peer.build_mink_robot(target)
