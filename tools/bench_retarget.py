@@ -66,6 +66,9 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--mink-solver", default="daqp", help="qpsolvers backend of mink (default daqp)")
     ap.add_argument("--repeat", type=int, default=2, help="timed runs per row; the best wall time is reported")
     ap.add_argument("--threads", type=int, default=2, help="torch.set_num_threads and OMP/BLAS threads")
+    ap.add_argument("--dataset-clips", type=int, default=4,
+                    help="also time a dataset of the first N clips x --targets: batched (mer retarget --input) "
+                    "against one file at a time (retarget_file), same outputs; 0 skips it")  # fmt: skip
     ap.add_argument("--json", type=Path, default=None, help="also write the rows to this JSON file")
     ap.add_argument("-v", "--verbose", action="store_true")
     return ap
@@ -287,14 +290,44 @@ def main() -> None:
           "excess [rad]; mer/mink fps > 1: mer faster.")  # fmt: skip
     if not have_mink:
         print(mink_note)
+    dataset = bench_dataset(data_dir, args.source, args.targets, args.dataset_clips) if args.dataset_clips > 0 else None
     if args.json is not None:
-        payload = {
+        payload = {"dataset": dataset,
             "clip": str(path), "source": args.source, "frames": F, "fps": MODEL_FPS, "threads": torch.get_num_threads(),
             "repeat": args.repeat, "load_average": load, "mink_solver": args.mink_solver if have_mink else None, "rows": rows,
         }  # fmt: skip
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(payload, indent=2))
         log.info("wrote %s", args.json)
+
+
+def bench_dataset(data_dir: Path, source: str, targets: list[str], n_clips: int) -> dict:
+    """Batched dataset retargeting against one file at a time: the same clips, targets and CSV outputs."""
+    import shutil
+    import tempfile
+
+    from mer_models.dataset_retarget import retarget_dataset
+    from mer_models.retarget import retarget_file
+
+    files = sorted((data_dir / source).glob("*.csv"))[:n_clips]
+    with tempfile.TemporaryDirectory() as tmp:
+        inp = Path(tmp) / "in" / source
+        inp.mkdir(parents=True)
+        for f in files:
+            shutil.copy(f, inp / f.name)
+        frames = sum(read_lafan1_csv(f, source).num_frames for f in files) * len(targets)
+        t0 = time.perf_counter()
+        for t in targets:
+            for f in files:
+                retarget_file(f, source, t, out_csv=Path(tmp) / "one" / t / f.name, method="optimize")
+        one = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        retarget_dataset(str(inp.parent), source, targets, Path(tmp) / "batched")
+        batched = time.perf_counter() - t0
+    print(f"dataset: {len(files)} clips x {len(targets)} targets = {frames} frames | one file at a time "
+          f"{one:.1f} s ({frames / one:.0f} frames/s) | batched across clips {batched:.1f} s ({frames / batched:.0f} frames/s) "
+          f"| {one / batched:.2f}x")  # fmt: skip
+    return {"clips": len(files), "targets": targets, "frames": frames, "one_at_a_time_s": one, "batched_s": batched}
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""``mer retarget``: one motion file of a source robot → the same motion on a target robot."""
+"""``mer retarget``: a motion file, or a whole dataset, of a source robot → the same motions on target robots."""
 
 from __future__ import annotations
 
@@ -11,18 +11,30 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "retarget",
         help="retarget a LAFAN1-layout CSV to another robot",
         description="Retarget INPUT (CSV in the source robot's LAFAN1 layout) to the target robot. "
-        "Outputs: CSV in the target's layout (-o), BeyondMimic npz, Foxglove MCAP, PNG film strip.",
+        "Outputs: CSV in the target's layout (-o), BeyondMimic npz, Foxglove MCAP, PNG film strip. "
+        "Or a whole dataset: --input DIR|hf://REPO --targets ROBOT... --out DIR retargets every clip to every "
+        "target (batched, resumable, --shard-index/--num-shards for array jobs; docs/model.md).",
     )
-    p.add_argument("input", help="source motion, .csv or .csv.gz (root xyz, quat xyzw, joints)")
+    p.add_argument("input", nargs="?", help="source motion, .csv or .csv.gz (root xyz, quat xyzw, joints)")
     p.add_argument("--source", required=True, help="robot of the input motion (e.g. g1)")
-    p.add_argument("--target", required=True, help="robot to retarget to (e.g. h1)")
+    p.add_argument("--target", help="robot to retarget to (e.g. h1)")
+    d = p.add_argument_group("datasets")
+    d.add_argument("--input", dest="input_dir", metavar="DIR|hf://REPO",
+                   help="folder with SOURCE/*.csv[.gz] (LAFAN1 layout) or *.csv[.gz], or a Hub dataset hf://OWNER/NAME[@REV]")
+    d.add_argument("--targets", nargs="+", help="robots to retarget every clip to")
+    d.add_argument("--out", help="output folder: OUT/TARGET/CLIP.csv (+ .npz), CLIP.metrics.json, summary.json")
+    d.add_argument("--formats", nargs="+", default=["csv"], choices=["csv", "npz"], help="files per clip (default csv)")
+    d.add_argument("--shard-index", type=int, default=0, help="this job's share of the (target, clip) pairs (0-based)")
+    d.add_argument("--num-shards", type=int, default=1, help="number of jobs sharing the dataset")
+    d.add_argument("--json", action="store_true", help="print the summary as JSON instead of a table")
+    d.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("-o", "--output", help="output CSV in the target's LAFAN1-style layout")
     p.add_argument("--npz", help="also write a BeyondMimic-style npz")
     p.add_argument("--mcap", help="also write a Foxglove MCAP")
     p.add_argument("--plot", help="also write a PNG of stick figures over time")
     p.add_argument("--model", help="checkpoint folder, zoo name or ORG/NAME for --method diffusion "
                    "(default: the bundled model mer-tiny-synthetic, for demos only)")
-    p.add_argument("--method", default="diffusion", choices=["diffusion", "optimize"], help="default diffusion")
+    p.add_argument("--method", choices=["diffusion", "optimize"], help="default: diffusion for a file, optimize for a dataset")
     p.add_argument("--steps", type=int, help="sampler steps (default: the model's, <= 20)")
     p.add_argument("--guidance", type=float, help="test-time energy guidance step (default: the model's)")
     p.add_argument("--seed", type=int, default=0, help="sampling seed")
@@ -36,6 +48,11 @@ def cmd_retarget(args) -> int:
     from mer_data.errors import MerError
     from mer_models.retarget import retarget_file
 
+    if args.input_dir is not None or args.targets is not None:
+        return _dataset(args)
+    if args.input is None or args.target is None:
+        raise MerError("give an INPUT file and --target, or a dataset: --input DIR --targets ROBOT... --out DIR")
+    args.method = args.method or "diffusion"
     if not any([args.output, args.npz, args.mcap, args.plot]):
         raise MerError("nothing to write", fix="give -o OUT.csv and/or --npz/--mcap/--plot")
     kw = {"steps": args.steps, "guidance": args.guidance, "seed": args.seed, "allow_unseen": args.allow_unseen}
@@ -55,4 +72,50 @@ def cmd_retarget(args) -> int:
     print(f"{args.source} -> {args.target} ({res.method}): {m.num_frames} frames at {m.fps:g} Hz", file=sys.stderr)
     for kind, path in res.outputs.items():
         print(f"wrote {kind}: {path}")
+    return 0
+
+
+def _dataset(args) -> int:
+    import json
+
+    from mer_data.errors import MerError
+    from mer_models.dataset_retarget import format_summary, retarget_dataset
+
+    missing = [n for n, v in (("--input", args.input_dir), ("--targets", args.targets), ("--out", args.out)) if v is None]
+    if missing or args.input is not None or args.target is not None:
+        raise MerError(
+            "a dataset run takes --input DIR, --targets and --out (and no INPUT file or --target)"
+            + (f"; missing: {', '.join(missing)}" if missing else ""),
+            fix="e.g. mer retarget --input lafan1/ --source g1 --targets h1 atlas --out retargeted/",
+        )
+    method = args.method or "optimize"
+    checkpoint, kw = None, {}
+    if method == "diffusion":
+        from mer_models.checkpoint import resolve_model
+        from mer_models.zoo import DEFAULT_MODEL
+
+        checkpoint = resolve_model(args.model or DEFAULT_MODEL, args.device)
+        kw = {"steps": args.steps, "guidance": args.guidance, "seed": args.seed, "allow_unseen": args.allow_unseen}
+    bar = None
+    if not args.quiet:
+        from tqdm import tqdm
+
+        bar = tqdm(unit="clip", file=sys.stderr, desc="retarget")
+
+    def progress(done: int, total: int) -> None:
+        if bar is not None:
+            bar.total = total
+            bar.n = done
+            bar.refresh()
+
+    try:
+        summary = retarget_dataset(
+            args.input_dir, args.source, args.targets, args.out, method=method, checkpoint=checkpoint,
+            formats=args.formats, shard_index=args.shard_index, num_shards=args.num_shards, input_fps=args.fps,
+            device=args.device, progress=progress, **kw,
+        )  # fmt: skip
+    finally:
+        if bar is not None:
+            bar.close()
+    print(json.dumps(summary, indent=1) if args.json else format_summary(summary))
     return 0

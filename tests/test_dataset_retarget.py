@@ -1,0 +1,149 @@
+"""``mer retarget --input DIR --targets ... --out DIR``: whole datasets, batched, resumable, sharded."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from hub_server import FakeHub
+from model_helpers import synthetic_csv
+
+from mer_data.atomic import owner_tag
+from mer_data.errors import MerError
+from mer_data.motion_io import read_lafan1_csv
+from mer_data.registry import get_skeleton
+from mer_models.dataset_retarget import _segments, plan_jobs, retarget_dataset
+from mer_models.retarget import retarget_features, sequence_metrics, source_features
+
+REPO = Path(__file__).resolve().parents[1]
+CLIPS = {"walk1_subject1": 150, "dance1_subject2": 90, "run1_subject2": 40}
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("lafan") / "data"
+    for k, (clip, n) in enumerate(CLIPS.items()):
+        synthetic_csv(root / "g1" / f"{clip}.csv", "g1", frames=n, seed=k)
+    return root
+
+
+@given(n=st.integers(1, 2000), segment=st.integers(16, 600), context=st.integers(0, 20))
+def test_segments_cover_every_frame_once_with_context(n, segment, context):
+    segs = _segments(n, segment, context)
+    cores = np.concatenate([np.arange(s, e) for _, _, s, e in segs])
+    np.testing.assert_array_equal(cores, np.arange(n))
+    for a, b, s, e in segs:
+        assert 0 <= a <= s < e <= b <= n and b - a <= segment + 2 * context
+        assert s - a >= min(context, s) - max(0, (b - a) - (segment + 2 * context))  # context kept where the clip has it
+
+
+def test_shards_split_the_pairs_exactly_once(tmp_path):
+    clips = {f"c{i}": tmp_path / f"c{i}.csv" for i in range(7)}
+    all_jobs = {(j.target, j.clip) for j in plan_jobs(clips, ["h1", "atlas"], tmp_path)}
+    parts = [plan_jobs(clips, ["h1", "atlas"], tmp_path, i, 3) for i in range(3)]
+    got = [(j.target, j.clip) for p in parts for j in p]
+    assert len(got) == len(set(got)) == len(all_jobs) == 14 and set(got) == all_jobs
+    with pytest.raises(MerError, match="shard-index"):
+        plan_jobs(clips, ["h1"], tmp_path, 3, 3)
+
+
+def test_a_dataset_retargets_once_and_resumes(dataset, tmp_path):
+    out = tmp_path / "out"
+    first = retarget_dataset(str(dataset), "g1", ["h1", "tron1"], out, formats=("csv", "npz"), segment=64, context=4,
+                             frames_per_batch=300)  # fmt: skip
+    assert first["jobs"] == 6 and first["done_now"] == 6 and first["done_before"] == 0
+    assert first["frames"] == 2 * sum(CLIPS.values())
+    for t in ("h1", "tron1"):
+        for clip, n in CLIPS.items():
+            rows = np.loadtxt(out / t / f"{clip}.csv", delimiter=",", ndmin=2)
+            assert rows.shape == (n, 7 + get_skeleton(t).num_dof) and np.isfinite(rows).all()
+            row = json.loads((out / t / f"{clip}.metrics.json").read_text())
+            assert row["limit_violation"] == 0 and np.isfinite(row["g_mpbpe"]) and row["frames"] == n
+            assert (out / t / f"{clip}.npz").is_file()
+    summary = json.loads((out / "summary.json").read_text())
+    assert len(summary["rows"]) == 6
+    assert not list(out.rglob(".tmp-*"))
+    assert read_lafan1_csv(out / "h1" / "walk1_subject1.csv", "h1").num_frames == CLIPS["walk1_subject1"]  # H1's own layout
+
+    (out / "h1" / "walk1_subject1.metrics.json").unlink()  # as if killed before that pair finished
+    again = retarget_dataset(str(dataset), "g1", ["h1", "tron1"], out, segment=64, context=4)
+    assert again["done_before"] == 5 and again["done_now"] == 1 and len(again["rows"]) == 6
+
+
+def test_batched_segments_match_the_whole_clip_solution(dataset, tmp_path):
+    """Segments solved with context, many at once, are as good as the clip solved in one piece."""
+    out = tmp_path / "out"
+    retarget_dataset(str(dataset), "g1", ["atlas"], out, segment=48, context=8, frames_per_batch=200)
+    g1 = get_skeleton("g1")
+    m = read_lafan1_csv(dataset / "g1" / "walk1_subject1.csv", "g1")
+    feats = source_features(m.base_pos, m.base_quat, m.node_angles(g1), g1, 30.0)
+    whole = sequence_metrics(feats, g1, retarget_features(feats, g1, "atlas", method="optimize").motion)
+    row = json.loads((out / "atlas" / "walk1_subject1.metrics.json").read_text())
+    assert row["g_mpbpe"] < whole["g_mpbpe"] * 1.15 + 1e-3
+    assert row["jerk_frame"] < whole["jerk_frame"] * 1.3 + 2e-3  # no seams at the segment joins
+
+
+def _env(tmp_path) -> dict:
+    env = {**os.environ, "PYTHONPATH": str(REPO), "MER_HOME": str(tmp_path / "mer"), "HF_HOME": str(tmp_path / "hf"),
+           "HF_HUB_DISABLE_TELEMETRY": "1"}  # fmt: skip
+    env.pop("HF_HUB_OFFLINE", None)
+    return env
+
+
+def test_a_killed_run_resumes_and_leaves_nothing_half_written(dataset, tmp_path):
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "mer_models", "retarget", "--input", str(dataset), "--source", "g1",
+           "--targets", "h1", "tron1", "atlas", "--out", str(out), "--quiet"]  # fmt: skip
+    proc = subprocess.Popen(cmd, env=_env(tmp_path), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+    t0 = time.monotonic()
+    killed = False
+    while time.monotonic() - t0 < 240 and proc.poll() is None:
+        if list(out.glob("*/*.metrics.json")):
+            os.killpg(proc.pid, signal.SIGKILL)
+            killed = True
+            break
+        time.sleep(0.005)
+    proc.wait()
+    done_at_kill = len(list(out.glob("*/*.metrics.json")))
+    (out / "h1").mkdir(parents=True, exist_ok=True)
+    (out / "h1" / f".tmp-x.csv~{owner_tag().split('~')[0]}~{2**22 + 7}~abc").write_text("half")  # a dead writer's leftover
+    assert killed and done_at_kill < 9, "the run finished before it could be interrupted"
+    res = subprocess.run(cmd + ["--json"], env=_env(tmp_path), capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    summary = json.loads(res.stdout)
+    assert summary["done_before"] >= done_at_kill and summary["done_before"] + summary["done_now"] == 9
+    assert len(list(out.glob("*/*.metrics.json"))) == 9 and len(list(out.glob("*/*.csv"))) == 9
+    assert not list(out.rglob(".tmp-*"))  # nothing half written survives (temp files of the killed run are swept)
+
+
+def test_hub_dataset_input(tmp_path):
+    src = tmp_path / "src"
+    synthetic_csv(src / "g1" / "walk1_subject1.csv", "g1", frames=40)
+    files = {"g1/walk1_subject1.csv": (src / "g1" / "walk1_subject1.csv").read_bytes(), "h1/other.csv": b"not requested\n"}
+    with FakeHub("someone/robot-motions", files) as hub:
+        env = {**_env(tmp_path), "HF_ENDPOINT": hub.url}
+        cmd = [sys.executable, "-m", "mer_models", "retarget", "--input", "hf://someone/robot-motions", "--source", "g1",
+               "--targets", "h1", "--out", str(tmp_path / "out"), "--quiet"]  # fmt: skip
+        res = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+        assert res.returncode == 0, res.stderr
+        assert "walk1_subject1" in res.stdout and (tmp_path / "out" / "h1" / "walk1_subject1.csv").is_file()
+        assert not any(r.endswith("other.csv") for r in hub.requests)
+
+
+def test_dataset_arguments_are_checked(dataset, tmp_path):
+    env = _env(tmp_path)
+    base = [sys.executable, "-m", "mer_models", "retarget", "--source", "g1"]
+    res = subprocess.run(base + ["--input", str(dataset), "--targets", "h1"], env=env, capture_output=True, text=True, timeout=120)
+    assert res.returncode != 0 and "missing: --out" in res.stderr
+    res = subprocess.run(base + ["--input", str(tmp_path / "nope"), "--targets", "h1", "--out", str(tmp_path / "o")],
+                         env=env, capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert res.returncode != 0 and "does not exist" in res.stderr and "Traceback" not in res.stderr
