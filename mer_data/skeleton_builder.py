@@ -115,12 +115,12 @@ def _resolve_values(urdf: UrdfModel, card: RobotCard) -> tuple[dict[str, float],
         elif j.type in ("revolute", "continuous"):
             follows[j.name] = (master, mult, off)
         else:
-            raise UnsupportedJointError(
-                f"a {j.type} joint that mimics '{master}' cannot be represented",
+            raise UnsupportedJointError(  # a prismatic joint driven by a free revolute master
+                f"a {j.type} joint that mimics the free joint '{master}' cannot be represented",
                 path=urdf.path,
                 line=j.line,
                 element=f"joint '{j.name}'",
-                fix=f"lock '{master}' (or '{j.name}') in the robot card",
+                fix=f"lock '{master}' (its mimics are then held with it): --lock {master}=VALUE",
             )
     return held, follows
 
