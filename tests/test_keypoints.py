@@ -96,7 +96,7 @@ def test_unseen_quadruped_maps_rear_legs_to_legs_and_front_legs_to_arms():
     assert name("left_knee") == "RL_calf" and name("right_knee") == "RR_calf"
     assert name("left_ankle") == "RL_foot"
     assert name("left_elbow") == "FL_calf" and name("right_hand") == "FR_foot"
-    assert props["left_shoulder"].confidence == "low"
+    assert props["left_shoulder"].confidence == "medium" and "standing in for the arm" in props["left_shoulder"].reason
     assert skel.keypoints["left_toe"] == -1
 
 
