@@ -1,50 +1,60 @@
 """Propose the 14 key points of a robot nobody has described yet, from its geometry and names.
 
-Rules (URDF convention: x forward, y left, z up, at the zero pose):
+Rules (body frame: x forward, y left, z up, at the zero pose; :mod:`mer_data.proposal_body`):
 
-* **limbs**: every leaf link defines a chain of moving joints from the base; the joints a chain does
-  not share with any other chain are its limb. A limb is on the left if its end has y > 0.
-* **legs** are the limbs whose ends are lowest; on a robot with two limbs per side that both reach
-  the ground (a quadruped) the rear pair are the legs and the front pair stand in for the arms.
-* **arms** are the remaining limbs of a side that end away from the body's mid-plane (the head, on
-  the mid-plane, is ignored); the longest one wins.
-* on a limb, the **knee/elbow** is, among the joints named so (knee, kny, elbow, el...) or else all,
-  the one whose axis crosses the limb (it bends, not twists) nearest the limb's middle; the
-  **hip/shoulder** is the last joint before it that is not a twist about the thigh/upper arm;
-  the **ankle** is the limb's last joint; the **toe** is a fixed frame named toe/tip under the foot,
-  else the front-bottom point of the foot's primitive collision shapes; the **hand** is a fixed
-  hand/palm/gripper frame under the last arm joint, else that joint when it is not the elbow.
+* **fingers** (several moving chains branching within a small reach at the end of a limb) are
+  locked at 0 (clipped into their limits); the hand key point goes to the wrist/palm they hang from;
+* **limbs** are the joint chains to the leaf links that no other chain shares; left is y > 0;
+* **legs** are the limbs whose ends are lowest; with two limbs per side on the ground (a
+  quadruped) the hind pair are the legs and the front pair stand in for the arms;
+* a leg whose last joint is far above its lowest point (a point foot: quadrupeds, Bolt, P441A)
+  ends at the **knee**, and its foot frame is the **ankle** (no toe); a wheel at the end of a leg
+  is the ankle (no toe); otherwise the knee is the bending joint nearest the leg's middle (named
+  knee/kfe/calf first) and the ankle the last joint;
+* the **hip/shoulder** is the last joint before the knee/elbow that is not a twist about the
+  thigh/upper arm;
+* the **toe** is a fixed frame named toe/tip under the foot, else the front-bottom point of the
+  foot's primitive collision shapes, else the front of the foot's sole frames (low);
+* the **hand** is a fixed hand/palm/gripper frame under the last arm joint; else, on an arm that
+  ends at a wrist, the wrist (or the far end of its collision shapes); on an arm that ends at
+  the elbow, a site on the forearm link, 0.79 upper-arm lengths from the elbow (the human
+  forearm/upper-arm ratio) towards the link's centre of mass (low).
 
-Each proposal comes with a confidence: ``high`` (name and geometry agree), ``medium`` (geometry
-only), ``low`` (a guess worth checking), or ``absent`` with the reason.
+Each proposal comes with a confidence: ``high`` (geometry and names agree), ``medium`` (geometry
+only, or a documented convention), ``low`` (an estimate worth checking), or ``absent`` with the reason.
 """
 
 from __future__ import annotations
 
+import logging
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from .proposal_body import Body, Limb, digit_locks, side_of_name
 from .robot_card import DEFAULT_BODY_PARTS, KeypointSpec, RobotCard
 from .skeleton import KEYPOINTS
-from .skeleton_builder import build_skeleton, zero_pose_link_transforms
+from .skeleton_builder import build_skeleton
 from .urdf import UrdfModel
 
-__all__ = ["KeypointProposal", "propose_keypoints"]
+log = logging.getLogger(__name__)
 
+__all__ = ["KeypointProposal", "RobotProposal", "propose_robot", "propose_keypoints", "FOREARM_RATIO"]
+
+#: Human forearm (elbow → wrist) over upper arm (shoulder → elbow): 0.146 / 0.186 of body height
+#: (Drillis & Contini segment lengths). Used only for an arm that ends at its elbow.
+FOREARM_RATIO = 0.79
 _SIDE_EPS = 0.02  # |y| below this [m] is the mid-plane
+_SAME_PLACE = 0.02  # joints closer than this [m] act at one place
+_POINT_FOOT = 0.3  # a last leg joint further than this fraction of the leg above the ground is a knee
 _NAMES = {
-    "knee": re.compile(r"knee|kny|shin|calf|tibia", re.I),
+    "knee": re.compile(r"knee|kny|kfe|shin|calf|tibia|lowerleg|lower_leg", re.I),
     "elbow": re.compile(r"elbow|elb|(^|_)el[xyz]?($|_)|forearm", re.I),
-    "hip": re.compile(r"hip|hp[xyz]|thigh|femur", re.I),
-    "shoulder": re.compile(r"shoulder|sh[xyz]|(^|_)sh($|_)|scap|clav", re.I),
-    "ankle": re.compile(r"ankle|ak[xyz]|foot", re.I),
     "toe": re.compile(r"toe|tip", re.I),
-    "hand": re.compile(r"hand|palm|gripper|(^|_)ee($|_)|tcp|wrist", re.I),
+    "hand": re.compile(r"hand|palm|gripper|(^|_)ee($|_)|tcp", re.I),
+    "wheel": re.compile(r"wheel", re.I),
 }
-_LEFT = re.compile(r"(^|[_\W])(l|left)([_\W]|$)|^left|left|_L($|_)|(^|_)L_", re.I)
-_RIGHT = re.compile(r"(^|[_\W])(r|right)([_\W]|$)|^right|right|_R($|_)|(^|_)R_", re.I)
 
 
 @dataclass(frozen=True)
@@ -58,253 +68,304 @@ class KeypointProposal:
     position: tuple[float, float, float] | None = None  # zero pose, root frame [m]
 
 
-def _side_of_name(name: str) -> str | None:
-    left, right = bool(_LEFT.search(name)), bool(_RIGHT.search(name))
-    if left and not right:
-        return "left"
-    if right and not left:
-        return "right"
-    return None
+@dataclass(frozen=True)
+class RobotProposal:
+    """Key points, the joints to lock (fingers) and notes on the conventions applied."""
+
+    keypoints: dict[str, KeypointProposal]
+    locked: dict[str, float] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
 
 
 def propose_keypoints(urdf: UrdfModel, locked: dict[str, float] | None = None) -> dict[str, KeypointProposal]:
     """Propose all 14 key points of ``urdf`` (joints in ``locked`` held at their value)."""
+    return propose_robot(urdf, locked).keypoints
+
+
+def propose_robot(urdf: UrdfModel, locked: dict[str, float] | None = None) -> RobotProposal:
+    """Propose key points and finger locks for ``urdf`` (joints in ``locked`` held at their value)."""
     locked = dict(locked or {})
+    body = Body.of(urdf, _skeleton(urdf, locked))
+    fingers, hand_nodes = digit_locks(body)
+    hands = [body.skel.link_names[h] for h in hand_nodes]
+    notes = []
+    if fingers:
+        held_before = len(body.skel.locked)
+        body = Body.of(urdf, _skeleton(urdf, {**locked, **fingers}))
+        followers = len(body.skel.locked) - held_before - len(fingers)
+        notes.append(
+            f"locked {len(fingers)} finger joint(s) at 0 (clipped into their limits)"
+            + (f", with the {followers} mimic joint(s) that follow them," if followers else "")
+            + " below " + ", ".join(repr(l) for l in hands)
+            + ": motions carry no finger data; the hand key point is the wrist/palm"
+        )
+    if body.flipped:
+        notes.append("the root frame looks backwards (left-named limbs at y < 0): sides and front read in it turned 180° about z")
+    out: dict[str, KeypointProposal] = {}
+    limbs = body.limbs()
+    quad = False
+    for side, sign in (("left", 1.0), ("right", -1.0)):
+        mine = [l for l in limbs if sign * body.pos[l.end][1] > _SIDE_EPS]
+        legs, arms, quad_side = _split_legs_arms(mine)
+        quad |= quad_side
+        _propose_leg(out, side, legs[0] if legs else None, body)
+        _propose_arm(out, side, arms[0] if arms else None, body, quad_side)
+    if quad:
+        notes.append("quadruped: hind legs are the legs, front legs stand in for the arms (hip → shoulder, knee → elbow, foot → hand)")
+    return RobotProposal({k: _in_root_frame(out[k], body) for k in KEYPOINTS}, fingers, tuple(notes))
+
+
+def _skeleton(urdf: UrdfModel, locked: dict[str, float]):
     blank = RobotCard(
         name="proposal", urdf=urdf.path, keypoints={k: None for k in KEYPOINTS}, locked=locked,
         body_parts=DEFAULT_BODY_PARTS,
     )  # fmt: skip
-    skel = build_skeleton(urdf, blank)
-    t_root = zero_pose_link_transforms(urdf, dict(skel.locked))
-    pos = skel.rest_positions
-    link_node = _link_nodes(urdf, skel)
-
-    # ---- limbs: unshared joint chains to the leaf links ----------------------------------------
-    has_child = {j.parent for j in urdf.joints}
-    leaves = [l for l in urdf.links if l not in has_child and l != urdf.root]
-    chains: dict[str, list[int]] = {}
-    for leaf in leaves:
-        node = link_node[leaf]
-        chain = [n for n in reversed(skel.path_to_root(node)) if n != 0]
-        if chain:
-            chains[leaf] = chain
-    # group leaves that end on the same last joint (fingers of one hand, corner frames of a foot)
-    by_end: dict[int, list[str]] = {}
-    for leaf, chain in chains.items():
-        by_end.setdefault(chain[-1], []).append(leaf)
-    limbs = []
-    ends = list(by_end)
-    for end in ends:
-        chain = [n for n in reversed(skel.path_to_root(end)) if n != 0]
-        others = {a for e in ends if e != end for a in skel.path_to_root(e)}
-        own = [n for n in chain if n not in others]
-        if not own:
-            continue
-        leaf_links = by_end[end]
-        tip = max((t_root[l][:3, 3] for l in leaf_links), key=lambda p: -p[2])  # lowest leaf point
-        limbs.append({"joints": own, "end": end, "leaves": leaf_links, "tip": tip})
-
-    proposals: dict[str, KeypointProposal] = {}
-    for side, sign in (("left", 1.0), ("right", -1.0)):
-        mine = [l for l in limbs if sign * pos[l["end"]][1] > _SIDE_EPS]
-        legs, arms, quad = _split_legs_arms(mine, pos)
-        leg = legs[0] if legs else None
-        arm = arms[0] if arms else None
-        _propose_leg(proposals, side, leg, skel, urdf, t_root, pos)
-        _propose_arm(proposals, side, arm, skel, urdf, t_root, pos, quad)
-    return {k: proposals[k] for k in KEYPOINTS}
+    return build_skeleton(urdf, blank)
 
 
-def _link_nodes(urdf: UrdfModel, skel) -> dict[str, int]:
-    """Every link → the node that carries it."""
-    out = {urdf.root: 0}
-    node_of_link = {l: i for i, l in enumerate(skel.link_names) if skel.node_kinds[i] == "revolute"}
-    node_names = set(skel.node_names)
-    stack = [urdf.root]
-    while stack:
-        link = stack.pop()
-        for j in urdf.children_of(link):
-            out[j.child] = node_of_link.get(j.child, out[link]) if j.name in node_names else out[link]
-            stack.append(j.child)
-    return out
+def _in_root_frame(p: KeypointProposal, body: Body) -> KeypointProposal:
+    if p.position is None or not body.flipped:
+        return p
+    x, y, z = p.position
+    return KeypointProposal(p.key, p.spec, p.confidence, p.reason, (-x, -y, z))
 
 
-def _split_legs_arms(limbs, pos):
-    """Legs: lowest-ending limbs; quadruped: two limbs near the ground → rear is leg, front is arm."""
+def _split_legs_arms(limbs: list[Limb]) -> tuple[list[Limb], list[Limb], bool]:
+    """Legs: lowest-ending limbs; two limbs of a side on the ground → hind is leg, front is arm."""
     if not limbs:
         return [], [], False
-    lowest = min(l["tip"][2] for l in limbs)
-    span = max(l["tip"][2] for l in limbs) - lowest
-    ground = [l for l in limbs if l["tip"][2] - lowest < max(0.05, 0.1 * span)]
-    if len(ground) >= 2:  # quadruped-like: legs front and rear
-        ground.sort(key=lambda l: l["tip"][0])
+    lowest = min(l.tip[2] for l in limbs)
+    span = max(l.tip[2] for l in limbs) - lowest
+    ground = [l for l in limbs if l.tip[2] - lowest < max(0.05, 0.1 * span)]
+    if len(ground) >= 2:
+        ground.sort(key=lambda l: l.tip[0])
         return [ground[0]], [ground[-1]], True
-    legs = ground
-    rest = [l for l in limbs if l not in legs]
-    rest.sort(key=lambda l: -len(l["joints"]))
-    return legs, rest, False
+    rest = sorted((l for l in limbs if l not in ground), key=lambda l: -len(l.joints))
+    return ground, rest, False
 
 
-def _named(skel, urdf_names, kind: str) -> list[int]:
+def _kp(key: str, body: Body, spec: KeypointSpec, confidence: str, reason: str) -> KeypointProposal:
+    return KeypointProposal(key, spec, confidence, reason, tuple(float(x) for x in body.at(spec.link, spec.offset)))
+
+
+def _node(key: str, body: Body, n: int, confidence: str, reason: str) -> KeypointProposal:
+    return _kp(key, body, KeypointSpec(body.skel.link_names[n]), confidence, f"{body.skel.node_names[n]} ({reason})")
+
+
+def _absent(key: str, reason: str) -> KeypointProposal:
+    return KeypointProposal(key, None, "absent", reason)
+
+
+def _named(body: Body, nodes: list[int], kind: str) -> list[int]:
     pat = _NAMES[kind]
-    return [n for n in urdf_names if pat.search(skel.node_names[n]) or pat.search(skel.link_names[n])]
+    return [n for n in nodes if pat.search(body.skel.node_names[n]) or pat.search(body.skel.link_names[n])]
 
 
-def _middle_joint(skel, joints: list[int], pos, start: np.ndarray, end: np.ndarray) -> int | None:
+def _bending(body: Body, joints: list[int], start: np.ndarray, end: np.ndarray) -> list[int]:
+    """Joints whose axis is across start → end (they bend the limb rather than twist it)."""
+    d = end - start
+    d = d / max(np.linalg.norm(d), 1e-9)
+    return [n for n in joints if abs(body.axes[n] @ d) < 0.5]
+
+
+def _middle_joint(body: Body, joints: list[int], start: np.ndarray, end: np.ndarray) -> int:
     """Of ``joints``, the one that bends the limb nearest the middle of start → end."""
     mid = (start + end) / 2
-    cands = _bending(skel, joints, pos, start, end) or list(joints)
-    if not cands:
-        return None
-    return min(cands, key=lambda n: np.linalg.norm(pos[n] - mid))
+    cands = _bending(body, joints, start, end) or list(joints)
+    return min(cands, key=lambda n: np.linalg.norm(body.pos[n] - mid))
 
 
-def _pivot(skel, cluster: list[int], next_joint: int, pos) -> int:
-    """Hip/shoulder: the last joint of the cluster that is not a twist about the limb itself.
-
-    A joint whose axis runs along the segment to the knee/elbow (a thigh or upper-arm twist)
-    does not mark the pivot; the last one that bends the segment does.
-    """
+def _pivot(body: Body, cluster: list[int], next_joint: int) -> int:
+    """Hip/shoulder: the last joint of ``cluster`` that is not a twist about the segment to ``next_joint``
+    (joints at the knee/elbow's own place are skipped)."""
     for n in reversed(cluster):
-        seg = pos[next_joint] - pos[n]
+        seg = body.pos[next_joint] - body.pos[n]
         length = np.linalg.norm(seg)
-        if length < 1e-6 or abs(skel.axes[n] @ seg) / length < 0.7:
+        if length < _SAME_PLACE:  # part of the knee/elbow itself (a two-axis elbow), not the pivot
+            continue
+        if abs(body.axes[n] @ seg) / length < 0.7:
             return n
     return cluster[-1]
 
 
-def _bending(skel, joints: list[int], pos, start: np.ndarray, end: np.ndarray) -> list[int]:
-    """Joints whose axis is across the limb (they bend it rather than twist it)."""
-    d = end - start
-    d = d / max(np.linalg.norm(d), 1e-9)
-    return [n for n in joints if abs(skel.axes[n] @ d) < 0.5]
+# ---- legs -----------------------------------------------------------------------------------
+@dataclass
+class _Leg:
+    hip: int
+    knee: int
+    ankle: KeypointProposal | None  # without the key name set: filled by the caller
+    kind: str  # "foot" | "point" | "wheel"
+    by_name: bool
 
 
-def _spec_at_node(skel, node: int) -> KeypointSpec:
-    return KeypointSpec(skel.link_names[node])
+def _lowest_frame(body: Body, link: str) -> str | None:
+    frames = body.rigid_frames(link)[1:]
+    return min(frames, key=lambda l: body.p(l)[2], default=None)
 
 
-def _leg_points(leg, skel, urdf, t_root, pos):
-    """(hip node, knee node, ankle spec/pos/node, by-name?) of a leg chain.
+def _is_wheel(body: Body, n: int) -> bool:
+    """A leg's last joint named wheel (joint or link)."""
+    return bool(_NAMES["wheel"].search(body.skel.link_names[n]) or _NAMES["wheel"].search(body.skel.node_names[n]))
 
-    A leg whose last joint is the knee (a point-footed leg, e.g. a quadruped's calf joint) ends in
-    a foot frame: the ankle is then the lowest fixed frame under that joint.
-    """
-    joints = leg["joints"]
+
+def _leg_points(limb: Limb, body: Body, key: str) -> _Leg:
+    """Hip, knee and ankle of a leg (front legs of a quadruped use the same rules)."""
+    joints = limb.joints
     last = joints[-1]
-    knee_named_last = bool(_NAMES["knee"].search(skel.node_names[last])) and len(joints) >= 2
-    if knee_named_last:
-        knee, by_name = last, True
-        frames = [l for l in _fixed_descendants(urdf, skel.link_names[last])[1:]]
-        foot = min(frames, key=lambda l: t_root[l][2, 3], default=None)
-        ankle = None if foot is None else (KeypointSpec(foot), t_root[foot][:3, 3], None)
+    top = body.pos[joints[0]]
+    length = max(top[2] - limb.tip[2], 1e-6)
+    wheel = _is_wheel(body, last) and len(joints) >= 3
+    point = not wheel and (body.pos[last][2] - limb.tip[2]) > _POINT_FOOT * length and len(joints) >= 2
+    if point:  # the last joint is the knee; the foot frame (or the lowest collision point) is the ankle
+        knee, by_name = last, bool(_named(body, [last], "knee"))
+        link = body.skel.link_names[last]
+        foot = _lowest_frame(body, link)
+        if foot is not None:
+            ankle = _kp(key, body, KeypointSpec(foot), "", f"foot frame {foot!r} (point foot)")
+        else:
+            pts = body.collision_points(body.rigid_frames(link))
+            ankle = None
+            if len(pts):
+                low = pts[np.argmin(pts[:, 2])]
+                ankle = _kp(key, body, KeypointSpec(link, body.offset_in(link, low)), "",
+                            f"lowest collision point of {link!r} (point foot)")  # fmt: skip
+        kind = "point"
     else:
-        named = [n for n in _named(skel, joints, "knee") if n not in (joints[0], last)]
-        knee = _middle_joint(skel, named or joints[1:-1] or joints, pos, pos[joints[0]], pos[last])
+        inner = joints[:-1]
+        named = [n for n in _named(body, inner, "knee") if n != joints[0]]
+        knee = _middle_joint(body, named or inner[1:] or inner or joints, top, body.pos[last])
         by_name = bool(named)
-        ankle = (_spec_at_node(skel, last), pos[last], last)
+        if wheel:
+            ankle = _kp(key, body, KeypointSpec(body.skel.link_names[last]), "", f"{body.skel.node_names[last]} (wheel centre)")
+            kind = "wheel"
+        else:
+            ankle = _kp(key, body, KeypointSpec(body.skel.link_names[last]), "", f"{body.skel.node_names[last]} (last leg joint)")
+            kind = "foot"
     i = joints.index(knee)
-    hip = _pivot(skel, joints[:i] or joints[:1], knee, pos)
-    return hip, knee, ankle, by_name
+    hip = _pivot(body, joints[:i] or joints[:1], knee)
+    return _Leg(hip, knee, ankle, kind, by_name)
 
 
-def _propose_leg(out, side, leg, skel, urdf, t_root, pos) -> None:
+def _side_ok(body: Body, limb: Limb, side: str) -> bool:
+    names = {side_of_name(body.skel.node_names[n]) for n in limb.joints} - {None}
+    return names in (set(), {side})
+
+
+def _with(p: KeypointProposal, confidence: str, suffix: str = "") -> KeypointProposal:
+    return KeypointProposal(p.key, p.spec, confidence, p.reason + suffix, p.position)
+
+
+def _propose_leg(out: dict, side: str, limb: Limb | None, body: Body) -> None:
     keys = [f"{side}_{k}" for k in ("hip", "knee", "ankle", "toe")]
-    if leg is None or len(leg["joints"]) < 2:
+    if limb is None or len(limb.joints) < 2:
         for k in keys:
-            out[k] = KeypointProposal(k, None, "absent", f"no {side} leg chain found")
+            out[k] = _absent(k, f"no {side} leg chain found")
         return
-    joints = leg["joints"]
-    name_side = {_side_of_name(skel.node_names[n]) for n in joints} - {None}
-    side_ok = name_side in (set(), {side})
-    hip, knee, ankle, by_name = _leg_points(leg, skel, urdf, t_root, pos)
-    conf = "high" if by_name and side_ok else "medium"
+    leg = _leg_points(limb, body, keys[2])
+    conf = "high" if leg.by_name and _side_ok(body, limb, side) else "medium"
     how = ", by name" if conf == "high" else ", by geometry"
-    out[keys[0]] = KeypointProposal(keys[0], _spec_at_node(skel, hip), conf,
-                                    f"{skel.node_names[hip]} (last hip joint that is not a thigh twist{how})", tuple(pos[hip]))
-    out[keys[1]] = KeypointProposal(keys[1], _spec_at_node(skel, knee), conf, f"{skel.node_names[knee]} (knee{how})", tuple(pos[knee]))
-    if ankle is None:
-        out[keys[2]] = KeypointProposal(keys[2], None, "absent", "the leg ends at the knee with no foot frame")
-        out[keys[3]] = KeypointProposal(keys[3], None, "absent", "no foot")
+    out[keys[0]] = _node(keys[0], body, leg.hip, conf, f"last hip joint that is not a thigh twist{how}")
+    out[keys[1]] = _node(keys[1], body, leg.knee, conf, f"knee{how}")
+    if leg.ankle is None:
+        out[keys[2]] = _absent(keys[2], "the leg ends at the knee with no foot frame or collision shape")
+        out[keys[3]] = _absent(keys[3], "no foot")
         return
-    spec, p, node = ankle
-    if node is None:
-        out[keys[2]] = KeypointProposal(keys[2], spec, "medium", f"foot frame {spec.link!r} (point foot)", tuple(p))
-        out[keys[3]] = KeypointProposal(keys[3], None, "absent", "point foot: no toe")
-        return
-    out[keys[2]] = KeypointProposal(keys[2], spec, conf, f"{skel.node_names[node]} (last leg joint{how})", tuple(p))
-    out[keys[3]] = _toe(keys[3], node, skel, urdf, t_root, pos)
+    out[keys[2]] = _with(leg.ankle, conf if leg.kind == "foot" else "medium")
+    if leg.kind == "point":
+        out[keys[3]] = _absent(keys[3], "point foot: the foot is the ankle key point")
+    elif leg.kind == "wheel":
+        out[keys[3]] = _absent(keys[3], "wheel foot: the wheel centre is the ankle key point")
+    else:
+        out[keys[3]] = _toe(keys[3], limb.joints[-1], body)
 
 
-def _fixed_descendants(urdf: UrdfModel, link: str) -> list[str]:
-    out, stack = [], [link]
-    while stack:
-        l = stack.pop()
-        out.append(l)
-        stack.extend(j.child for j in urdf.children_of(l) if j.type == "fixed")
-    return out
-
-
-def _toe(key, ankle, skel, urdf, t_root, pos) -> KeypointProposal:
-    foot = skel.link_names[ankle]
-    links = _fixed_descendants(urdf, foot)
+def _toe(key: str, ankle: int, body: Body) -> KeypointProposal:
+    foot = body.skel.link_names[ankle]
+    links = body.rigid_frames(foot)
     named = [l for l in links[1:] if _NAMES["toe"].search(l)]
     if named:
-        best = max(named, key=lambda l: t_root[l][0, 3])
-        p = t_root[best][:3, 3]
-        return KeypointProposal(key, KeypointSpec(best), "high", f"fixed frame {best!r}", tuple(p))
-    pts = [t_root[l][:3, :3] @ urdf.collision_points[l].T + t_root[l][:3, 3:] for l in links if l in urdf.collision_points]
-    if pts:
-        allp = np.concatenate(pts, axis=1).T  # (K, 3) root frame
-        p = np.array([allp[:, 0].max(), pos[ankle][1], allp[:, 2].min()])
-        t = t_root[foot]
-        offset = t[:3, :3].T @ (p - t[:3, 3])
-        offset = np.round(offset, 4)
-        p = t[:3, :3] @ offset + t[:3, 3]
-        return KeypointProposal(
-            key, KeypointSpec(foot, tuple(float(x) for x in offset)), "medium",
-            f"front-bottom of the collision shapes of {foot!r}", tuple(p),
-        )  # fmt: skip
-    return KeypointProposal(
-        key, None, "absent", f"no toe frame and no primitive collision shape under {foot!r}; give it as link + offset"
-    )
+        best = max(named, key=lambda l: body.p(l)[0])
+        return _kp(key, body, KeypointSpec(best), "high", f"fixed frame {best!r}")
+    a = body.pos[ankle]
+    pts = body.collision_points(links)
+    if len(pts):
+        p = np.array([pts[:, 0].max(), a[1], pts[:, 2].min()])
+        return _kp(key, body, KeypointSpec(foot, body.offset_in(foot, p)), "medium",
+                   f"front-bottom of the collision shapes of {foot!r}")  # fmt: skip
+    # sole frames (force sensors, sole, contact points): the front of those at sole level
+    frames = [body.p(l) for l in links[1:] if abs(body.p(l)[1] - a[1]) < 0.08]
+    if frames:
+        f = np.array(frames)
+        sole = f[:, 2].min()
+        at_sole = f[f[:, 2] < sole + 0.015]
+        if at_sole[:, 0].max() - a[0] > 0.03:
+            p = np.array([at_sole[:, 0].max(), a[1], sole])
+            return _kp(key, body, KeypointSpec(foot, body.offset_in(foot, p)), "low",
+                       f"front of the sole frames under {foot!r} (no toe frame, no collision shape)")  # fmt: skip
+    return _absent(key, f"no toe frame, collision shape or sole frame ahead of {foot!r}; give it as link + offset")
 
 
-def _propose_arm(out, side, arm, skel, urdf, t_root, pos, quad: bool) -> None:
+# ---- arms -----------------------------------------------------------------------------------
+def _propose_arm(out: dict, side: str, limb: Limb | None, body: Body, quad: bool) -> None:
     keys = [f"{side}_{k}" for k in ("shoulder", "elbow", "hand")]
-    if arm is None or len(arm["joints"]) < 2:
+    if limb is None or len(limb.joints) < 2:
         for k in keys:
-            out[k] = KeypointProposal(k, None, "absent", f"no {side} arm chain found")
+            out[k] = _absent(k, f"no {side} arm chain found")
         return
-    if quad:  # front legs stand in for the arms: hip -> shoulder, knee -> elbow, foot -> hand
-        hip, knee, ankle, _ = _leg_points(arm, skel, urdf, t_root, pos)
-        why = " (front leg standing in for the arm)"
-        out[keys[0]] = KeypointProposal(keys[0], _spec_at_node(skel, hip), "low", f"{skel.node_names[hip]}{why}", tuple(pos[hip]))
-        out[keys[1]] = KeypointProposal(keys[1], _spec_at_node(skel, knee), "low", f"{skel.node_names[knee]}{why}", tuple(pos[knee]))
-        if ankle is None:
-            out[keys[2]] = KeypointProposal(keys[2], None, "absent", "the front leg has no foot frame")
+    if quad:  # front legs stand in for the arms: hip → shoulder, knee → elbow, foot → hand
+        leg = _leg_points(limb, body, keys[2])
+        why = ", front leg standing in for the arm"
+        out[keys[0]] = _node(keys[0], body, leg.hip, "medium", f"front hip{why}")
+        out[keys[1]] = _node(keys[1], body, leg.knee, "medium", f"front knee{why}")
+        if leg.ankle is None:
+            out[keys[2]] = _absent(keys[2], "the front leg has no foot frame or collision shape")
         else:
-            out[keys[2]] = KeypointProposal(keys[2], ankle[0], "low", f"front foot {ankle[0].link!r}{why}", tuple(ankle[1]))
+            out[keys[2]] = _with(leg.ankle, "medium", why)
         return
-    joints = arm["joints"]
+    joints = limb.joints
     last = joints[-1]
-    named_elbow = [n for n in _named(skel, joints, "elbow") if n != joints[0]]
-    elbow = _middle_joint(skel, named_elbow or joints[1:] or joints, pos, pos[joints[0]], pos[last])
+    named_elbow = [n for n in _named(body, joints, "elbow") if n != joints[0]]
+    elbow = _middle_joint(body, named_elbow or joints[1:] or joints, body.pos[joints[0]], body.pos[last])
     i = joints.index(elbow)
-    shoulder = _pivot(skel, joints[:i] or joints[:1], elbow, pos)
-    conf = "high" if named_elbow else "medium"
-    out[keys[0]] = KeypointProposal(keys[0], _spec_at_node(skel, shoulder), conf,
-                                    f"{skel.node_names[shoulder]} (last shoulder joint that is not an upper-arm twist)", tuple(pos[shoulder]))
-    out[keys[1]] = KeypointProposal(keys[1], _spec_at_node(skel, elbow), conf, f"{skel.node_names[elbow]} (elbow)", tuple(pos[elbow]))
-    # hand: a fixed hand frame under the last joint, else the last joint (if beyond the elbow)
-    links = _fixed_descendants(urdf, skel.link_names[last])
-    named = [l for l in links[1:] if _NAMES["hand"].search(l)]
+    shoulder = _pivot(body, joints[:i] or joints[:1], elbow)
+    conf = "high" if named_elbow and _side_ok(body, limb, side) else "medium"
+    out[keys[0]] = _node(keys[0], body, shoulder, conf, "last shoulder joint that is not an upper-arm twist")
+    out[keys[1]] = _node(keys[1], body, elbow, conf, "elbow")
+    out[keys[2]] = _hand(keys[2], body, shoulder, elbow, last, side)
+
+
+def _hand(key: str, body: Body, shoulder: int, elbow: int, last: int, side: str) -> KeypointProposal:
+    link = body.skel.link_names[last]
+    frames = body.rigid_frames(link)
+    named = [l for l in frames[1:] if _NAMES["hand"].search(l)]
     if named:
-        best = max(named, key=lambda l: np.linalg.norm(t_root[l][:3, 3] - pos[shoulder]))
-        out[keys[2]] = KeypointProposal(keys[2], KeypointSpec(best), "high", f"fixed frame {best!r}", tuple(t_root[best][:3, 3]))
-    elif last != elbow:
-        out[keys[2]] = KeypointProposal(keys[2], _spec_at_node(skel, last), "medium", f"{skel.node_names[last]} (last arm joint)", tuple(pos[last]))
-    else:
-        out[keys[2]] = KeypointProposal(
-            keys[2], None, "absent", f"the {side} arm ends at the elbow; give the hand as link + offset"
-        )
+        best = max(named, key=lambda l: np.linalg.norm(body.p(l) - body.pos[shoulder]))
+        return _kp(key, body, KeypointSpec(best), "high", f"fixed frame {best!r}")
+    if last != elbow:  # the arm ends at a wrist: the wrist, or the far end of its collision shapes
+        d = body.pos[last] - body.pos[elbow]
+        d = d / max(np.linalg.norm(d), 1e-9)
+        pts = body.collision_points(frames)
+        if len(pts):
+            reach = float(((pts - body.pos[last]) @ d).max())
+            if reach > 0.01:
+                p = body.pos[last] + reach * d
+                return _kp(key, body, KeypointSpec(link, body.offset_in(link, p)), "medium",
+                           f"far end of the collision shapes of {link!r} along the forearm")  # fmt: skip
+        return _node(key, body, last, "medium", "last arm joint: the wrist")
+    # the arm ends at the elbow: a site on the forearm link, towards its centre of mass
+    upper = float(np.linalg.norm(body.pos[elbow] - body.pos[shoulder]))
+    com = _com(body, frames)
+    d = None if com is None else com - body.pos[elbow]
+    if d is None or np.linalg.norm(d) < 0.02:
+        d = body.pos[elbow] - body.pos[shoulder]  # no usable inertial: continue the upper arm
+    d = d / max(np.linalg.norm(d), 1e-9)
+    p = body.pos[elbow] + FOREARM_RATIO * upper * d
+    return _kp(key, body, KeypointSpec(link, body.offset_in(link, p)), "low",
+               f"the {side} arm ends at the elbow: {FOREARM_RATIO} upper-arm lengths along the forearm "
+               "(human proportions); check it")  # fmt: skip
+
+
+def _com(body: Body, links: list[str]) -> np.ndarray | None:
+    """Body-frame centre of the inertial origins of ``links`` (unweighted), or None."""
+    coms = [body.at(l, body.urdf.inertial_coms[l]) for l in links if l in body.urdf.inertial_coms]
+    return np.mean(coms, axis=0) if coms else None

@@ -7,39 +7,51 @@ import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from .errors import RobotCardError
-from .keypoint_proposal import KeypointProposal, propose_keypoints
+from .keypoint_proposal import KeypointProposal, propose_robot
 from .registry import Robot, validate_robot_name, write_robot
 from .robot_card import DEFAULT_BODY_PARTS, RobotCard, parse_keypoints
 from .safe_io import decode_utf8, read_regular_file, safe_yaml_load
-from .skeleton import KEYPOINTS
+from .skeleton import KEYPOINTS, Skeleton
 from .skeleton_builder import build_skeleton
-from .urdf import load_urdf
+from .urdf import UrdfModel, load_urdf
 
 log = logging.getLogger(__name__)
 
-__all__ = ["register_robot", "RegistrationReport", "parse_lock", "load_keypoints_file"]
+__all__ = ["register_robot", "RegistrationReport", "parse_lock", "load_keypoints_file", "prismatic_locks"]
 
 
 @dataclass(frozen=True)
 class RegistrationReport:
-    robot: Robot
+    """What a registration did (or, with ``dry_run``, would do).
+
+    ``robot`` is the installed entry (None on a dry run); ``skeleton``/``card`` what was (or would
+    be) installed; ``warnings`` what was ignored or may surprise; ``notes`` the conventions applied.
+    """
+
+    robot: Robot | None
     proposals: dict[str, KeypointProposal] | None  # None when key points came from a file
     warnings: list[str] = field(default_factory=list)
+    skeleton: Skeleton | None = None
+    card: RobotCard | None = None
+    urdf_path: Path | None = None
+    notes: list[str] = field(default_factory=list)
 
     def summary(self) -> str:
-        s = self.robot.skeleton
+        s = self.skeleton if self.skeleton is not None else self.robot.skeleton
         sites = [n for n, k in zip(s.node_names, s.node_kinds) if k == "site"]
         mimic = [n for n, m in zip(s.node_names, s.mimic_source) if m >= 0]
+        head = "registered" if self.robot is not None else "dry run, nothing written: would register"
         lines = [
-            f"registered {s.name!r} from {self.robot.urdf_path}",
+            f"{head} {s.name!r} from {self.urdf_path or self.robot.urdf_path}",
             f"  nodes {s.num_nodes} (base 1, joints {int(s.revolute_mask.sum())}, sites {len(sites)}), "
             f"actuated joints {s.num_dof}" + (f", mimic {len(mimic)}" if mimic else ""),
         ]
         if s.locked:
-            lines.append(f"  locked: {', '.join(f'{k}={v:g}' for k, v in s.locked.items())}")
+            lines.append(f"  locked ({len(s.locked)}): {', '.join(f'{k}={v:g}' for k, v in s.locked.items())}")
         lines.append("  key points:")
         for k in KEYPOINTS:
             node = s.keypoints[k]
@@ -49,6 +61,7 @@ class RegistrationReport:
                 lines.append(f"    {k:15s} {where:40s} [{p.confidence}] {p.reason}")
             else:
                 lines.append(f"    {k:15s} {where}")
+        lines.extend(f"  note: {n}" for n in self.notes)
         if self.proposals is not None:
             unsure = [k for k, p in self.proposals.items() if p.confidence in ("low", "absent")]
             if unsure:
@@ -85,6 +98,17 @@ def load_keypoints_file(path: str | Path) -> dict:
     return parse_keypoints(data, str(path))
 
 
+def prismatic_locks(urdf: UrdfModel, locks: dict[str, float]) -> dict[str, float]:
+    """Prismatic joints the user did not lock, held at 0 clipped into their limits (skeletons only turn)."""
+    out = {}
+    for j in urdf.joints:
+        if j.type == "prismatic" and j.name not in locks:
+            lo = -np.inf if j.lower is None else j.lower
+            hi = np.inf if j.upper is None else j.upper
+            out[j.name] = float(np.clip(0.0, lo, hi))
+    return out
+
+
 def register_robot(
     name: str,
     urdf_path: str | Path,
@@ -92,18 +116,34 @@ def register_robot(
     keypoints_file: str | Path | None = None,
     locks: dict[str, float] | None = None,
     force: bool = False,
+    dry_run: bool = False,
 ) -> RegistrationReport:
-    """Validate a URDF, settle its key points, and install it in the registry atomically."""
+    """Validate a URDF, settle its key points and locks, and install it in the registry atomically.
+
+    Without ``keypoints_file`` the key points are proposed and finger joints locked
+    (:func:`~mer_data.keypoint_proposal.propose_robot`); prismatic joints not in ``locks`` are
+    locked at 0 in any case. ``dry_run`` validates and reports without writing anything.
+    """
     validate_robot_name(name)
     urdf_path = Path(urdf_path)
     urdf = load_urdf(urdf_path)
     locks = dict(locks or {})
-    proposals = None
+    warnings = list(urdf.warnings)
+    sliding = prismatic_locks(urdf, locks)
+    if sliding:
+        warnings.append(
+            f"prismatic joint(s) {', '.join(f'{k}={v:g}' for k, v in sliding.items())} locked "
+            "(mer's skeletons have turning joints only; --lock JOINT=VALUE holds one elsewhere)"
+        )
+    locks = {**sliding, **locks}
+    proposals, notes = None, []
     if keypoints_file is not None:
         keypoints = load_keypoints_file(keypoints_file)
     else:
-        proposals = propose_keypoints(urdf, locks)
+        proposal = propose_robot(urdf, locks)
+        proposals, notes = proposal.keypoints, list(proposal.notes)
         keypoints = {k: p.spec for k, p in proposals.items()}
+        locks = {**proposal.locked, **locks}  # the user's --lock wins
     card = RobotCard(
         name=name,
         urdf=urdf_path.name,
@@ -114,12 +154,13 @@ def register_robot(
         path=str(keypoints_file) if keypoints_file else None,
     )
     skel = build_skeleton(urdf, card)  # refuse before anything is written
-    warnings = []
     if skel.num_dof == 0:
         warnings.append("the robot has no moving joint")
     present = sum(v >= 0 for v in skel.keypoints.values())
     if present < 4:
         warnings.append(f"only {present} key points: retargeting has little to follow")
+    if dry_run:
+        return RegistrationReport(None, proposals, warnings, skel, card, urdf_path, notes)
     robot, _ = write_robot(card, urdf_path, force=force)
     log.info("registered %s", robot.skeleton)
-    return RegistrationReport(robot, proposals, warnings)
+    return RegistrationReport(robot, proposals, warnings, robot.skeleton, card, urdf_path, notes)

@@ -1,8 +1,10 @@
 """The robot registry: name → (robot card, URDF, skeleton).
 
-Built-in robots ship inside the package (``mer_data/robots/<name>/``). User robots live under
-``$MER_HOME/robots/<name>/`` (default ``MER_HOME``: the platform's user cache folder, e.g.
-``~/.cache/mer``) and are used by name everywhere the built-ins are.
+Built-in robots ship inside the package (``mer_data/robots/<name>/``). User robots live in the
+platform's user-data folder (``~/.local/share/mer/robots/<name>/`` on Linux), or under
+``$MER_HOME/robots/<name>/`` when ``MER_HOME`` is set (:mod:`mer_data.registry_location`; robots
+left in the old cache-folder registry are moved there once), and are used by name everywhere the
+built-ins are.
 
 Registration is atomic: the new entry is written and validated in a temporary folder beside the
 registry and renamed into place; a failure or an interruption leaves no half-written entry.
@@ -18,13 +20,13 @@ import logging
 import os
 import re
 import shutil
-import sys
 import threading
 from dataclasses import dataclass
 from pathlib import Path
 
 from .atomic import atomic_dir, recover_dir, sweep_stale, trash_dir
 from .errors import RegistryError, RobotCardError, RobotExistsError, UnknownRobotError
+from .registry_location import legacy_robots_dir, robots_dir
 from .robot_card import RobotCard, dump_card, load_card
 from .skeleton import Skeleton
 from .skeleton_builder import build_skeleton
@@ -52,21 +54,11 @@ CARD_FILE = "robot.yaml"
 
 
 def mer_home() -> Path:
-    """``$MER_HOME``, else the platform's user cache folder + ``mer``."""
+    """``$MER_HOME``, else the platform's user cache folder + ``mer`` (caches: model cards, downloads)."""
     env = os.environ.get("MER_HOME")
     if env:
         return Path(env).expanduser()
-    if sys.platform == "win32":
-        base = Path(os.environ.get("LOCALAPPDATA", Path.home() / "AppData" / "Local"))
-        return base / "mer" / "Cache"
-    if sys.platform == "darwin":
-        return Path.home() / "Library" / "Caches" / "mer"
-    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "mer"
-
-
-def robots_dir() -> Path:
-    """Folder of the user robots (``$MER_HOME/robots``)."""
-    return mer_home() / "robots"
+    return legacy_robots_dir().parent
 
 
 def validate_robot_name(name: str) -> str:

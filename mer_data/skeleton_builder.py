@@ -102,25 +102,28 @@ def _resolve_values(urdf: UrdfModel, card: RobotCard) -> tuple[dict[str, float],
             if mj.mimic is None or master in held:
                 break
             master, mult, off = mj.mimic[0], mult * mj.mimic[1], mult * mj.mimic[2] + off
-        if mj.type not in ("revolute", "continuous"):
+        if master in held:  # a locked master of any type: the mimic is held with it
+            held[j.name] = mult * held[master] + off
+        elif mj.type == "fixed":  # a fixed master never moves: the mimic stays at its offset
+            log.warning("joint '%s' mimics the fixed joint '%s': held at its offset %g", j.name, master, off)
+            held[j.name] = off
+        elif mj.type not in ("revolute", "continuous"):
             raise UnsupportedJointError(
-                f"mimics '{master}', a {mj.type} joint; a mimic master must be revolute or continuous",
+                f"mimics '{master}', a {mj.type} joint; a free mimic master must be revolute or continuous",
                 path=urdf.path,
                 line=j.line,
                 element=f"joint '{j.name}'",
-                fix=f"lock '{j.name}' in the robot card (locked: {{{j.name}: VALUE}})",
+                fix=f"lock '{master}' (its mimics are then held with it): --lock {master}=VALUE",
             )
-        if master in held:
-            held[j.name] = mult * held[master] + off
         elif j.type in ("revolute", "continuous"):
             follows[j.name] = (master, mult, off)
         else:
-            raise UnsupportedJointError(
-                f"a {j.type} joint that mimics '{master}' cannot be represented",
+            raise UnsupportedJointError(  # a prismatic joint driven by a free revolute master
+                f"a {j.type} joint that mimics the free joint '{master}' cannot be represented",
                 path=urdf.path,
                 line=j.line,
                 element=f"joint '{j.name}'",
-                fix=f"lock '{master}' (or '{j.name}') in the robot card",
+                fix=f"lock '{master}' (its mimics are then held with it): --lock {master}=VALUE",
             )
     return held, follows
 

@@ -19,6 +19,7 @@ import numpy as np
 from lxml import etree
 
 from .errors import MalformedURDFError
+from .limits import MAX_LENGTH_M
 from .safe_io import read_regular_file
 from .urdf_checks import JOINT_TYPES, CheckedJoint, check_joints, check_links, check_tree, parse_xml
 
@@ -64,6 +65,9 @@ class UrdfModel:
         root: the single link that is no joint's child.
         collision_points: link → (K, 3) extreme points of its box/sphere/cylinder collision
             shapes in the link frame [m] (meshes are not loaded); used to propose toe key points.
+        inertial_coms: link → (3,) centre of mass in the link frame [m], where the URDF gives an
+            ``<inertial>`` (used to tell which way a link extends).
+        warnings: what was read but ignored (e.g. a ``<mimic>`` on a fixed joint), one sentence each.
     """
 
     path: str
@@ -73,6 +77,8 @@ class UrdfModel:
     joints: tuple[UrdfJoint, ...]
     root: str
     collision_points: dict[str, np.ndarray]
+    inertial_coms: dict[str, np.ndarray] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
     # lookups built once (linear in the file): name -> joint, link -> child joints / parent joint
     _by_name: dict[str, UrdfJoint] = field(init=False, repr=False, compare=False)
     _children: dict[str, tuple[UrdfJoint, ...]] = field(init=False, repr=False, compare=False)
@@ -148,11 +154,19 @@ def _read_values_with_yourdfpy(root, checked: list[CheckedJoint], path: str) -> 
             fix="check the numbers and attributes of <visual>, <inertial>, <material> and other elements",
         ) from None
     theirs = {j.name: j for j in model.robot.joints}
-    out = []
+    out, warnings = [], []
     for c in checked:
         j = theirs[c.name]
         lim = j.limit
         mimic = None if j.mimic is None else (j.mimic.joint, float(j.mimic.multiplier), float(j.mimic.offset))
+        if mimic is not None and c.type == "fixed":
+            # a fixed joint moves nothing: the tag has nothing to drive (common in gripper URDFs)
+            warnings.append(
+                f"{path}:{c.line}: joint '{c.name}' is fixed but carries <mimic joint=\"{mimic[0]}\">; "
+                "a fixed joint moves nothing, so the tag is ignored"
+            )
+            log.warning("%s", warnings[-1])
+            mimic = None
         out.append(
             UrdfJoint(
                 name=c.name,
@@ -167,7 +181,26 @@ def _read_values_with_yourdfpy(root, checked: list[CheckedJoint], path: str) -> 
                 line=c.line,
             )
         )
-    return {"joints": tuple(out), "collision_points": _collision_points(model)}
+    return {
+        "joints": tuple(out),
+        "collision_points": _collision_points(model),
+        "inertial_coms": _inertial_coms(model),
+        "warnings": tuple(warnings),
+    }
+
+
+def _inertial_coms(model) -> dict[str, np.ndarray]:
+    """Centre of mass of every link with an ``<inertial>``, in the link frame."""
+    out: dict[str, np.ndarray] = {}
+    for link in model.robot.links:
+        inertial = link.inertial
+        if inertial is None:
+            continue
+        origin = inertial.origin if inertial.origin is not None else np.eye(4)
+        com = np.asarray(origin, dtype=np.float64)[:3, 3]
+        if np.isfinite(com).all() and np.abs(com).max() <= MAX_LENGTH_M:
+            out[link.name] = com
+    return out
 
 
 def _collision_points(model) -> dict[str, np.ndarray]:

@@ -34,6 +34,15 @@ def shared_robots(shared_dir: Path) -> Path:
 
 
 @pytest.fixture(scope="session")
+def shared_wild_robots(shared_dir: Path) -> Path:
+    """``../shared/robots-wild``: public URDFs as their makers publish them (folder/NAME.urdf)."""
+    d = shared_dir / "robots-wild"
+    if not (d / "SOURCES.md").is_file():
+        pytest.skip(f"{d} has no robot files")
+    return d
+
+
+@pytest.fixture(scope="session")
 def lafan1_dir(shared_dir: Path) -> Path:
     d = shared_dir / "data" / "lafan1"
     if not (d / "g1").is_dir() or not (d / "h1").is_dir():

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from mer_data.keypoint_proposal import propose_keypoints
+from mer_data.keypoint_proposal import propose_keypoints, propose_robot
 from mer_data.registry import load_robot
 from mer_data.robot_card import RobotCard
 from mer_data.skeleton import KEYPOINTS
@@ -96,7 +96,7 @@ def test_unseen_quadruped_maps_rear_legs_to_legs_and_front_legs_to_arms():
     assert name("left_knee") == "RL_calf" and name("right_knee") == "RR_calf"
     assert name("left_ankle") == "RL_foot"
     assert name("left_elbow") == "FL_calf" and name("right_hand") == "FR_foot"
-    assert props["left_shoulder"].confidence == "low"
+    assert props["left_shoulder"].confidence == "medium" and "standing in for the arm" in props["left_shoulder"].reason
     assert skel.keypoints["left_toe"] == -1
 
 
@@ -110,3 +110,15 @@ def test_mirrored_robot_gives_mirrored_keypoints():
         assert (a >= 0) == (b >= 0)
         if a >= 0:
             np.testing.assert_allclose(mskel.rest_positions[b], skel.rest_positions[a] * flip, atol=1e-12, err_msg=k)
+
+
+@pytest.mark.parametrize("name", ["talos", "valkyrie"])
+def test_proposed_finger_locks_are_the_curated_ones(name):
+    """Without the card's locks, the proposer locks exactly the joints the curated card locks."""
+    robot = load_robot(name)
+    got = propose_robot(load_urdf(robot.urdf_path))
+    assert got.locked == dict(robot.card.locked)
+    rest = robot.skeleton.rest_positions
+    for k, p in got.keypoints.items():
+        if p.spec is not None:
+            assert np.linalg.norm(np.asarray(p.position) - rest[robot.skeleton.keypoints[k]]) < 0.06, (k, p)

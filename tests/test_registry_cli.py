@@ -169,3 +169,41 @@ def test_demo_refuses_an_unknown_show_robot_before_doing_anything(capsys, tmp_pa
     code, out, err = run(capsys, "demo", "--out", str(tmp_path / "d"), "--show", "nobot")
     assert code == 1 and "--show 'nobot'" in err and "mer_demo_humanoid" in err
     assert out == "" and not (tmp_path / "d").exists()
+
+
+def test_dry_run_prints_the_show_table_and_writes_nothing(shared_wild_robots, capsys):
+    urdf = str(shared_wild_robots / "unitree_h1_hands" / "unitree_h1_hands.urdf")
+    code, out, err = run(capsys, "robots", "register", "h1hands", "--urdf", urdf, "--dry-run")
+    assert code == 0, err
+    assert not robots_dir().exists() or not list(robots_dir().iterdir())
+    head = [l for l in out.splitlines() if l.lstrip().startswith("#")]
+    assert len(head) == 1 and "zero-pose pos [m]" in head[0] and "dry run, nothing written" in out
+    rows = {l.split()[1]: l for l in out.splitlines() if l[:6].strip().isdigit()}
+    assert rows["left_hand"].split()[-1] == "left_hand" and "site" in rows["left_hand"]
+    assert "L_thumb_distal_joint" not in rows  # fingers locked, not nodes
+    assert "[high] fixed frame 'L_hand_base_link'" in out and "locked 12 finger joint(s)" in out
+    # the same table `mer robots show` prints once it is registered
+    assert run(capsys, "robots", "register", "h1hands", "--urdf", urdf)[0] == 0
+    _, shown, _ = run(capsys, "robots", "show", "h1hands")
+    table = lambda text: [l for l in text.splitlines() if l[:6].strip().isdigit()]  # noqa: E731
+    assert table(shown) == table(out)
+
+
+def test_prismatic_joints_and_fixed_mimics_register_with_warnings(tmp_path, capsys):
+    """A gripper with a sliding finger and a mimic-tagged fixed pad: registered, what was ignored said."""
+    robot = humanoid()
+    text = robot.xml().replace(
+        "</robot>",
+        '<link name="slide_link"/><link name="pad_link"/>'
+        '<joint name="slide" type="prismatic"><parent link="left_hand_link"/><child link="slide_link"/>'
+        '<axis xyz="0 1 0"/><limit lower="0.01" upper="0.04"/></joint>'
+        '<joint name="pad" type="fixed"><parent link="slide_link"/><child link="pad_link"/>'
+        '<mimic joint="slide"/></joint></robot>',
+    )
+    urdf = tmp_path / "grip.urdf"
+    urdf.write_text(text)
+    code, out, err = run(capsys, "robots", "register", "gripbot", "--urdf", str(urdf))
+    assert code == 0, err
+    assert "warning: prismatic joint(s) slide=0.01 locked" in out
+    assert "fixed but carries <mimic" in out and "'pad'" in out
+    assert get_skeleton("gripbot").locked == {"slide": 0.01}

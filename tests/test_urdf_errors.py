@@ -206,3 +206,47 @@ def test_unknown_robot_lists_the_known_ones():
 def test_errors_form_one_hierarchy():
     for cls in (MalformedURDFError, UnsafeURDFError, BrokenReferenceError, KinematicTreeError, UnsupportedJointError, RobotCardError):
         assert issubclass(cls, MerError)
+
+
+def test_mimic_tag_on_a_fixed_joint_is_ignored_with_a_warning():
+    """Gripper URDFs often tag fixed joints with <mimic>: a fixed joint moves nothing."""
+    body = (
+        '<link name="a"/><link name="b"/><link name="c"/>\n' + rev("j", "a", "b") + "\n"
+        '<joint name="pad" type="fixed"><parent link="b"/><child link="c"/><origin xyz="0 0 0.1"/>'
+        '<mimic joint="j" multiplier="2"/></joint>\n'
+    )
+    model = parse_urdf_bytes(urdf(body), "r.urdf")
+    assert model.joint("pad").mimic is None and model.joint("j").mimic is None
+    assert len(model.warnings) == 1 and "r.urdf:5" in model.warnings[0] and "'pad'" in model.warnings[0]
+    skel = build_skeleton(model, blank_card())
+    assert skel.node_names == ("a", "j") and int((skel.mimic_source >= 0).sum()) == 0
+
+
+def test_prismatic_mimic_of_a_free_joint_names_a_fix_that_works():
+    body = (
+        '<link name="a"/><link name="b"/><link name="c"/>\n' + rev("j", "a", "b") + "\n"
+        '<joint name="s" type="prismatic"><parent link="b"/><child link="c"/><axis xyz="0 0 1"/>'
+        '<limit lower="-1" upper="1"/><mimic joint="j"/></joint>\n'
+    )
+    model = parse_urdf_bytes(urdf(body), "r.urdf")
+    with pytest.raises(UnsupportedJointError) as e:
+        build_skeleton(model, blank_card())
+    assert "--lock j=" in e.value.fix
+    skel = build_skeleton(model, blank_card(locked={"j": 0.5}))  # the fix it names
+    assert skel.locked == {"j": 0.5, "s": 0.5}
+
+
+def test_mimics_of_a_fixed_or_a_locked_prismatic_master_are_held():
+    body = (
+        '<link name="a"/><link name="b"/><link name="c"/><link name="d"/><link name="e"/>\n'
+        '<joint name="f" type="fixed"><parent link="a"/><child link="b"/></joint>\n'
+        + rev("m1", "b", "c", line_extra='<mimic joint="f" multiplier="3" offset="0.2"/>') + "\n"
+        '<joint name="s" type="prismatic"><parent link="c"/><child link="d"/><axis xyz="0 0 1"/>'
+        '<limit lower="0" upper="0.1"/></joint>\n'
+        + rev("m2", "d", "e", line_extra='<mimic joint="s" multiplier="2" offset="0.1"/>')
+    )
+    model = parse_urdf_bytes(urdf(body), "r.urdf")
+    with pytest.raises(UnsupportedJointError, match="prismatic"):  # a free prismatic joint still is not
+        build_skeleton(model, blank_card())
+    skel = build_skeleton(model, blank_card(locked={"s": 0.05}))
+    assert skel.locked == pytest.approx({"s": 0.05, "m1": 0.2, "m2": 0.2}) and skel.num_dof == 0

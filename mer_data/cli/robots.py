@@ -8,6 +8,7 @@ import sys
 
 from ..register import parse_lock, register_robot
 from ..registry import list_robots, load_robot, unregister_robot
+from ..robot_table import skeleton_table
 from ..skeleton import KEYPOINTS, Skeleton
 
 
@@ -30,6 +31,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--keypoints", help="YAML/JSON file of the 14 key points; proposed from the URDF if omitted")
     q.add_argument("--lock", action="append", default=[], metavar="JOINT=VALUE", help="hold a joint at a value [rad]")
     q.add_argument("--force", action="store_true", help="replace a robot of the same name")
+    q.add_argument("--dry-run", action="store_true", help="print what would be registered (the `show` table) and write nothing")
     q.set_defaults(func=cmd_register)
 
     q = rs.add_parser("unregister", help="remove a registered robot")
@@ -96,26 +98,17 @@ def cmd_show(args) -> int:
     if args.json:
         print(json.dumps(robot_json(s, source="built-in" if r.builtin else "user", urdf=str(r.urdf_path)), indent=2))
         return 0
-    print(f"{s.name}: {r.card.description}")
-    print(f"  urdf {r.urdf_path}  ({'built-in' if r.builtin else 'user'})")
-    print(f"  {s.num_nodes} nodes, {s.num_dof} actuated joints" + (f", locked {len(s.locked)}" if s.locked else ""))
-    inv = {v: k for k, v in s.keypoints.items() if v >= 0}
-    rest = s.rest_positions
-    print(f"  {'#':>3s} {'node':28s} {'kind':8s} {'parent':>6s} {'axis':>20s} {'limits [rad]':>17s} {'zero-pose pos [m]':>24s} key")
-    for j in range(s.num_nodes):
-        ax = "" if s.node_kinds[j] != "revolute" else "({:+.2f} {:+.2f} {:+.2f})".format(*s.axes[j])
-        lim = "" if s.node_kinds[j] != "revolute" else f"[{s.lower[j]:+.2f}, {s.upper[j]:+.2f}]"
-        pos = "({:+.3f} {:+.3f} {:+.3f})".format(*rest[j])
-        print(f"  {j:3d} {s.node_names[j]:28s} {s.node_kinds[j]:8s} {s.parents[j]:6d} {ax:>20s} {lim:>17s} {pos:>24s} {inv.get(j, '')}")
-    missing = [k for k, v in s.keypoints.items() if v < 0]
-    if missing:
-        print(f"  absent key points: {', '.join(missing)}")
+    print(skeleton_table(s, description=r.card.description, urdf=str(r.urdf_path), source="built-in" if r.builtin else "user"))
     return 0
 
 
 def cmd_register(args) -> int:
     locks = dict(parse_lock(t) for t in args.lock)
-    report = register_robot(args.name, args.urdf, keypoints_file=args.keypoints, locks=locks, force=args.force)
+    report = register_robot(
+        args.name, args.urdf, keypoints_file=args.keypoints, locks=locks, force=args.force, dry_run=args.dry_run
+    )
+    if args.dry_run:
+        print(skeleton_table(report.skeleton, description=report.card.description, urdf=str(report.urdf_path), source="dry run"))
     print(report.summary())
     return 0
 
