@@ -36,7 +36,8 @@ with ``l_j`` the cumulative bone length from the part's start to key point ``j``
 One factor per chain stretches whole chains by one number, so single segments come out wrong (H1's
 upper arm 0.279 m against its 0.333 m): kept for comparison (docs/decisions.md).
 
-Orientation goals (:func:`orientation_goals`): the base, the feet (ankle bodies) and the hands are
+Orientation goals (:func:`orientation_goals`): the base, the feet (ankle bodies, where both robots
+have toes) and the hands are
 tracked in orientation relative to each robot's zero-pose frame; a hand's goal is turned by the
 rotation that takes the target's zero-pose forearm onto the reference's, so robots whose arms rest
 differently (Atlas' T-pose, G1's hanging arms) still mean the same hand pose.
@@ -412,7 +413,8 @@ def orientation_calibration(ref: Skeleton, target: Skeleton) -> dict[str, np.nda
     The target's goal orientation of that body is ``R_ref(t) @ C``: identity for the base and the
     feet (every robot's zero pose stands upright on flat feet); for a hand, the smallest rotation
     taking the target's zero-pose forearm (elbow → hand; shoulder → hand without an elbow) onto
-    the reference's. A target hand fixed to its forearm (no wrist joint, H1) is not tracked: the
+    the reference's. A foot is tracked only where both robots have a toe: on a point foot the
+    ankle key point sits on the shank, which must not be held flat like a sole. A target hand fixed to its forearm (no wrist joint, H1) is not tracked: the
     elbow and hand positions already set its orientation, and a goal would only fight them.
     """
     out = {"base": np.eye(3)}
@@ -421,6 +423,10 @@ def orientation_calibration(ref: Skeleton, target: Skeleton) -> dict[str, np.nda
         if ref.keypoints.get(k, -1) < 0 or target.keypoints.get(k, -1) < 0:
             continue
         c = np.eye(3)
+        if k.endswith("ankle"):
+            toe = k.replace("ankle", "toe")
+            if ref.keypoints.get(toe, -1) < 0 or target.keypoints.get(toe, -1) < 0:
+                continue  # a point foot (no toe: quadrupeds, Bolt): the "ankle" body is the shank
         if k.endswith("hand"):
             side = k.split("_")[0]
             elbow = target.keypoints.get(f"{side}_elbow", -1)

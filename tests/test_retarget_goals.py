@@ -218,3 +218,15 @@ def test_coarse_to_fine_start_is_as_accurate_as_solving_every_frame():
     a, c = window_metrics(fine, b), window_metrics(c2f, b)
     assert c["g_mpbpe"][0] < a["g_mpbpe"][0] * 1.1 + 1e-3
     assert c["limit_violation"][0] == 0
+
+
+def test_point_feet_are_not_held_flat(tmp_path):
+    """A robot whose legs end in point feet (no toe key point) has its ankle on the shank: no foot orientation goal."""
+    g1 = get_skeleton("g1")
+    from dataclasses import replace
+
+    kp = dict(g1.keypoints)
+    kp["left_toe"] = kp["right_toe"] = -1
+    pointy = replace(g1, keypoints=kp)
+    cal = orientation_calibration(g1, pointy)
+    assert "left_ankle" not in cal and "right_ankle" not in cal and "left_hand" in cal
