@@ -28,8 +28,8 @@ import numpy as np
 
 from ..motion_io import Motion
 from ..skeleton import Skeleton
-from .body import GROUPS, SIDES, Body, body_of
-from .postures import LYING, Posture, posture_chain
+from .body import GROUPS, SIDES, body_of
+from .postures import Posture, posture_chain
 from .quat import qaxis, qangle, qcontinuous, qmatrix, qmul, qrotvec, qslerp
 from .signals import bump, ease, hold_and_blend, smooth_noise, soft_clamp
 
