@@ -15,15 +15,19 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("shards", help="build and inspect training shards (LAFAN1 robot CSVs -> HDF5/MCAP)")
     ss = p.add_subparsers(dest="shards_cmd", required=True, metavar="{build,inspect,card}")
 
-    b = ss.add_parser("build", help="build training shards from robot motion CSVs")
-    b.add_argument("--input", required=True, metavar="DIR|hf://REPO_ID", help="folder with ROBOT/*.csv[.gz], or a Hub dataset (hf://OWNER/NAME[@REV])")
-    b.add_argument("--robots", nargs="+", required=True, metavar="ROBOT", help="source robots with motion data, e.g. g1 h1")
+    b = ss.add_parser("build", help="build training shards from robot motion CSVs or synthetic motion")
+    src = b.add_mutually_exclusive_group(required=True)
+    src.add_argument("--input", metavar="DIR|hf://REPO_ID", help="folder with ROBOT/*.csv[.gz], or a Hub dataset (hf://OWNER/NAME[@REV])")
+    src.add_argument("--synthetic", type=int, metavar="N", help="N clips of synthetic motion per robot instead (any registered robot; no data needed)")
+    b.add_argument("--synthetic-seconds", type=float, default=20.0, metavar="S", help="seconds per synthetic clip (default 20)")
+    b.add_argument("--synthetic-seed", type=int, default=0, metavar="S", help="seed of the synthetic motion (default 0)")
+    b.add_argument("--robots", nargs="+", required=True, metavar="ROBOT", help="source robots, e.g. g1 h1 (with --input: robots with motion data)")
     b.add_argument("--out", required=True, metavar="DIR", help="output folder")
     b.add_argument("--format", choices=FORMATS, default="hdf5", help="shard format (default hdf5)")
     b.add_argument("--window", type=int, default=60, help="frames per window (default 60)")
     b.add_argument("--stride", type=int, default=None, help="frames between window starts (default: the window)")
     b.add_argument("--fps", type=float, default=30.0, help="frame rate of the input files [Hz] (default 30); windows are 30 Hz")
-    b.add_argument("--split", default="paper", metavar="paper|all|FILE", help="paper (3 training clips per robot), all, or a file of training clips")
+    b.add_argument("--split", default=None, metavar="paper|all|FILE", help="paper (3 training clips per robot), all, or a file of training clips (default: paper; all with --synthetic)")
     b.add_argument("--targets", nargs="+", default=list(PAPER_TARGETS), metavar="ROBOT", help="target robots (default: the paper's seven; 'all' = every registered robot)")
     b.add_argument("--augment", type=int, default=4, metavar="N", help="augmented target skeletons per training window and target (default 4)")
     b.add_argument("--seed", type=int, default=0, help="augmentation seed (default 0)")
@@ -48,10 +52,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def cmd_build(args) -> int:
     try:
+        synthetic = args.synthetic is not None
+        if synthetic and args.synthetic < 1:
+            raise ValueError(f"--synthetic must be at least 1 clip per robot, got {args.synthetic}")
         config = BuildConfig(
-            input=args.input, robots=tuple(args.robots), format=args.format, window=args.window, stride=args.stride,
-            fps=args.fps, split=args.split, targets=tuple(args.targets), augment=args.augment, seed=args.seed,
-            num_shards=args.num_shards,
+            input="synthetic" if synthetic else args.input, robots=tuple(args.robots), format=args.format,
+            window=args.window, stride=args.stride, fps=args.fps, split=args.split or ("all" if synthetic else "paper"),
+            targets=tuple(args.targets), augment=args.augment, seed=args.seed, num_shards=args.num_shards,
+            synthetic=args.synthetic or 0, synthetic_seconds=args.synthetic_seconds, synthetic_seed=args.synthetic_seed,
         )  # fmt: skip
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -30,7 +30,7 @@ import torch
 from ..atomic import atomic_write
 from ..errors import MerError, ShardBuildError, ShardFormatError
 from ..locks import hold_locks
-from ..motion_io import read_motion_file
+from ..skeleton import Skeleton
 from .card import write_card
 from .clips import BuildContext, ClipResult, ClipTask, process_clip
 from .config import BuildConfig
@@ -40,7 +40,7 @@ from .plan import Part, check_out, clean_temp, part_key, plan_build, temp_name
 from .reader import open_shard
 from .report import BuildReport
 from .schema import ShardMeta
-from .sources import sha256_bytes
+from .synthetic_source import source_sha256, source_size
 
 log = logging.getLogger(__name__)
 
@@ -106,7 +106,7 @@ def _merge(part: Part, meta: ShardMeta, results: dict[str, ClipResult], cfg: Bui
     shutil.rmtree(part.final.parent / ".partial" / part.name, ignore_errors=True)
 
 
-def _up_to_date(part: Part, clips: dict[str, Path], build_id: str) -> ShardMeta | None:
+def _up_to_date(part: Part, clips: dict[str, Path | str], build_id: str, cfg: BuildConfig, skel: Skeleton) -> ShardMeta | None:
     if not part.final.is_file():
         return None
     try:
@@ -114,7 +114,7 @@ def _up_to_date(part: Part, clips: dict[str, Path], build_id: str) -> ShardMeta 
     except MerError:
         return None
     try:
-        shas = {c: sha256_bytes(read_motion_file(clips[c])) for c in part.clips}
+        shas = {c: source_sha256(cfg, skel, clips[c]) for c in part.clips}
     except MerError:
         return None  # rebuilt; the clip's own error is reported then
     return meta if meta.part_key == part_key(build_id, part.name, shas) else None
@@ -163,7 +163,7 @@ def _build(cfg: BuildConfig, out: Path, plan, t0: float, *, workers: int, shard_
     report = BuildReport(out=str(out), build_id=plan.build_id, config=plan.config_json)
     todo: list[Part] = []
     for p in plan.parts.values():
-        meta = _up_to_date(p, plan.clips[p.robot], plan.build_id)
+        meta = _up_to_date(p, plan.clips[p.robot], plan.build_id, cfg, Skeleton.from_json(plan.skeletons[p.robot]))
         if meta is None:
             todo.append(p)
         else:
@@ -175,7 +175,7 @@ def _build(cfg: BuildConfig, out: Path, plan, t0: float, *, workers: int, shard_
         for c in p.clips
     ]
     order = {p.name: i for i, p in enumerate(todo)}  # files one after another (each done early), and
-    tasks.sort(key=lambda t: (order[t.part], -os.path.getsize(t.path)))  # largest clips first in each
+    tasks.sort(key=lambda t: (order[t.part], -source_size(t.path)))  # largest clips first in each
     total = sum(len(p.clips) for p in plan.parts.values())
     done = total - len(tasks)
     if progress:

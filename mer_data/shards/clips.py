@@ -22,7 +22,7 @@ from ..augment import LinkGroups, draw_dropped, draw_link_scales, link_groups
 from ..errors import MerError
 from ..finite import require_finite
 from ..fk import SkeletonTensors, skeleton_tensors
-from ..motion_io import decompress_motion, parse_lafan1, read_motion_file
+from ..motion_io import Motion, decompress_motion, parse_lafan1, read_motion_file
 from ..registry import Robot, load_robot
 from ..resample import resample
 from ..skeleton import KEYPOINTS, Skeleton
@@ -31,6 +31,7 @@ from .config import BuildConfig
 from .hdf5_io import Hdf5Shard, Hdf5ShardWriter
 from .schema import ShardMeta
 from .sources import sha256_bytes, stable_words
+from .synthetic_source import is_synthetic, synthetic_motion
 
 log = logging.getLogger(__name__)
 
@@ -135,30 +136,46 @@ def _reuse(piece: Path, key: str) -> ShardMeta | None:
     return meta if meta.part_key == key else None
 
 
-def process_clip(ctx: BuildContext, task: ClipTask) -> ClipResult:
-    """Turn one clip into a piece file (or a short/failed record). MerErrors become ``failed`` records."""
+def _load(ctx: BuildContext, task: ClipTask, record: dict) -> tuple[Motion | None, ClipResult | None]:
+    """The clip's motion (or the result of a failed read / a reused piece); fills ``record["sha256"]``."""
     cfg = ctx.config
+    key = lambda: piece_key(ctx.metas[task.part].build_id, task.robot, task.clip, record["sha256"])  # noqa: E731
+    piece = Path(task.piece)
+    if is_synthetic(task.path):
+        motion, record["sha256"] = synthetic_motion(cfg, ctx.skeleton(task.robot), task.path)
+        old = _reuse(piece, key())
+        return (None, ClipResult(task, old.sources[0], str(piece), reused=True)) if old is not None else (motion, None)
     path = Path(task.path)
-    record: dict = {"clip": task.clip, "file": path.name, "sha256": "", "fps_in": cfg.fps, "status": "failed"}
     try:
         raw = read_motion_file(path)
     except MerError as exc:
         record["error"] = str(exc)
-        return ClipResult(task, record, None)
+        return None, ClipResult(task, record, None)
     record["sha256"] = sha256_bytes(raw)
-    key = piece_key(ctx.metas[task.part].build_id, task.robot, task.clip, record["sha256"])
-    piece = Path(task.piece)
-    old = _reuse(piece, key)
+    old = _reuse(piece, key())
     if old is not None:
-        return ClipResult(task, old.sources[0], str(piece), reused=True)
+        return None, ClipResult(task, old.sources[0], str(piece), reused=True)
     try:
         data = decompress_motion(raw, path)
-        motion = parse_lafan1(
-            data, ctx.robot(task.robot), path=path, fps=cfg.fps, quat_tolerance=cfg.quat_tolerance
-        )
+        motion = parse_lafan1(data, ctx.robot(task.robot), path=path, fps=cfg.fps, quat_tolerance=cfg.quat_tolerance)
     except MerError as exc:
         record["error"] = str(exc)
-        return ClipResult(task, record, None)
+        return None, ClipResult(task, record, None)
+    return motion, None
+
+
+def process_clip(ctx: BuildContext, task: ClipTask) -> ClipResult:
+    """Turn one clip into a piece file (or a short/failed record). MerErrors become ``failed`` records."""
+    cfg = ctx.config
+    path = Path(task.path)
+    name = task.path if is_synthetic(task.path) else path.name
+    record: dict = {"clip": task.clip, "file": name, "sha256": "", "fps_in": cfg.fps, "status": "failed"}
+    motion, done = _load(ctx, task, record)
+    if done is not None:
+        return done
+    assert motion is not None
+    key = piece_key(ctx.metas[task.part].build_id, task.robot, task.clip, record["sha256"])
+    piece = Path(task.piece)
     record["frames_in"] = motion.num_frames
     if motion.warnings:
         record["warnings"] = list(motion.warnings)

@@ -18,6 +18,7 @@ PAPER_TARGETS: tuple[str, ...] = ("g1", "h1", "oli", "tron1", "atlas", "talos", 
 FORMATS = ("hdf5", "mcap")
 #: fields that do not change the content of the shards (left out of the build id)
 _NOT_CONTENT = ("input",)
+_SYNTHETIC = ("synthetic", "synthetic_seconds", "synthetic_seed")
 
 
 @dataclass(frozen=True)
@@ -42,6 +43,10 @@ class BuildConfig:
         compression: HDF5 filter: ``"lzf"`` (fast), ``"gzip"`` (portable, smaller) or ``"none"``.
         quat_tolerance: root quaternions within this of unit norm are renormalized, others refused.
         mcap_preview: windows per clip animated for Foxglove in MCAP shards (-1: all).
+        synthetic: clips of synthetic motion per robot (:mod:`mer_data.synthesis`) instead of
+            ``input``'s files (0: read ``input``); any registered robot works, LAFAN1 layout or not.
+        synthetic_seconds: length of each synthetic clip [s] (generated at ``fps``).
+        synthetic_seed: seed of the synthetic motion (clip ``i`` of robot ``R`` depends on it, ``R``, ``i``).
     """
 
     input: str
@@ -60,6 +65,9 @@ class BuildConfig:
     compression: str = "lzf"
     quat_tolerance: float = QUAT_TOLERANCE
     mcap_preview: int = 1
+    synthetic: int = 0
+    synthetic_seconds: float = 20.0
+    synthetic_seed: int = 0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "robots", tuple(self.robots))
@@ -94,6 +102,12 @@ class BuildConfig:
             problems.append(f"compression must be lzf, gzip or none, got {self.compression!r}")
         if not 0 < self.quat_tolerance < 1:
             problems.append(f"quat_tolerance must be in (0, 1), got {self.quat_tolerance}")
+        if not (isinstance(self.synthetic, int) and self.synthetic >= 0):
+            problems.append(f"synthetic must be an integer >= 0 (clips per robot), got {self.synthetic!r}")
+        if not self.synthetic_seconds > 0:
+            problems.append(f"synthetic_seconds must be positive, got {self.synthetic_seconds!r}")
+        if not isinstance(self.synthetic_seed, int):
+            problems.append(f"synthetic_seed must be an integer, got {self.synthetic_seed!r}")
         if problems:
             raise ValueError("; ".join(problems))
 
@@ -105,6 +119,9 @@ class BuildConfig:
         d = asdict(self)
         d["robots"], d["targets"] = list(self.robots), list(self.targets)
         d["augmentation"] = self.augmentation.to_dict()
+        if not self.synthetic:  # builds from files keep the configuration (and build id) they always had
+            for k in _SYNTHETIC:
+                d.pop(k)
         return d
 
     @classmethod

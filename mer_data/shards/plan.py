@@ -24,6 +24,7 @@ from .config import BuildConfig
 from .reader import open_shard
 from .schema import ShardMeta
 from .sources import discover_clips, resolve_input
+from .synthetic_source import synthetic_clips
 
 __all__ = ["Part", "Plan", "plan_build", "part_name", "part_key", "PART_RE", "EXTENSIONS", "temp_name", "check_out", "clean_temp"]
 
@@ -64,7 +65,7 @@ class Plan:
     config_json: dict
     targets: list[str]
     skeletons: dict[str, str]  # name -> Skeleton JSON
-    clips: dict[str, dict[str, Path]]  # robot -> clip -> file
+    clips: dict[str, dict[str, Path | str]]  # robot -> clip -> file, or a synthetic source string
     parts: dict[str, Part]
     metas: dict[str, ShardMeta]  # part name -> metadata template
 
@@ -83,10 +84,14 @@ def plan_build(cfg: BuildConfig, out: Path, shard_index: int | None) -> Plan:
         raise ShardBuildError(
             f"shard index {shard_index} is outside 0..{cfg.num_shards - 1}", fix="--shard-index I with 0 <= I < --num-shards"
         )
-    for r in cfg.robots:
-        lafan1_columns(r)  # unknown robot or no layout: refuse before touching anything
+    for r in cfg.robots:  # unknown robot (or, reading files, no LAFAN1 layout): refuse before touching anything
+        load_robot(r) if cfg.synthetic else lafan1_columns(r)
     targets = _resolve_targets(cfg.targets)
-    clips = discover_clips(resolve_input(cfg.input, cfg.robots), cfg.robots)
+    clips: dict[str, dict[str, Path | str]]
+    if cfg.synthetic:
+        clips = dict(synthetic_clips(cfg.robots, cfg.synthetic))
+    else:
+        clips = dict(discover_clips(resolve_input(cfg.input, cfg.robots), cfg.robots))
     splits = resolve_split(cfg.split, {r: list(c) for r, c in clips.items()})
     names = sorted(set(cfg.robots) | set(targets))
     skeletons = {n: load_robot(n).skeleton.to_json() for n in names}
