@@ -177,15 +177,17 @@ def _solve_batch(items: list[tuple[_Clip, tuple[int, int, int, int]]], src: Skel
 def _finish(c: _Clip, target: Skeleton, src: Skeleton, formats: Sequence[str], method: str, seconds: float) -> dict:
     """Write a finished clip's outputs (metrics file last) and return its summary row."""
     motion = TargetMotion(target, MODEL_FPS, c.q[:, : target.num_nodes], c.base_pos + c.shift, c.base_rot)
-    return _write(c.job, motion, c.world_feats, src, formats, method, seconds)
+    prepared = (c.feats, c.scaled, c.shift, (c.goal_rot, c.rot_mask))
+    return _write(c.job, motion, c.world_feats, src, formats, method, seconds, prepared)
 
 
-def _write(job: Job, motion: TargetMotion, world_feats: np.ndarray, src: Skeleton, formats, method: str, seconds: float) -> dict:
+def _write(job: Job, motion: TargetMotion, world_feats: np.ndarray, src: Skeleton, formats, method: str, seconds: float,
+           prepared: tuple | None = None) -> dict:  # fmt: skip
     if "csv" in formats:
         write_csv(job.output("csv"), motion)
     if "npz" in formats:
         write_npz(job.output("npz"), motion)
-    metrics = sequence_metrics(world_feats, src, motion)
+    metrics = sequence_metrics(world_feats, src, motion, prepared=prepared)
     row = {"clip": job.clip, "target": job.target, "frames": motion.num_frames, "method": method, "seconds": round(seconds, 3),
            **{k: metrics[k] for k in SUMMARY_KEYS}}  # fmt: skip
     atomic_write(job.output("metrics"), json.dumps(row, indent=1) + "\n")
@@ -250,7 +252,8 @@ def retarget_dataset(
                 t0 = time.perf_counter()
                 c = _read(j, src, target, input_fps)
                 res = retarget_features(c.world_feats, src, target, method="diffusion", checkpoint=checkpoint, fps=MODEL_FPS, **model_kw)
-                _write(j, res.motion, c.world_feats, src, formats, method, time.perf_counter() - t0)
+                prepared = (c.feats, c.scaled, c.shift, (c.goal_rot, c.rot_mask))
+                _write(j, res.motion, c.world_feats, src, formats, method, time.perf_counter() - t0, prepared)
                 frames_done += res.motion.num_frames
                 pairs_done += 1
                 if progress is not None:

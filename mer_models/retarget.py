@@ -207,12 +207,16 @@ def retarget_file(
     return res
 
 
-def sequence_metrics(reference: np.ndarray, source: Skeleton, motion: TargetMotion) -> dict[str, float]:
+def sequence_metrics(
+    reference: np.ndarray, source: Skeleton, motion: TargetMotion, *, prepared: tuple | None = None
+) -> dict[str, float]:
     """The paper's metrics (:func:`mer_models.metrics.window_metrics`) of a whole retargeted motion.
 
     Args:
         reference: (F, Jr, 9) source features (world frame) the motion was retargeted from.
         source: the source skeleton; ``motion``: the result (world frame, same frames).
+        prepared: :func:`~mer_models.long_horizon.prepare_reference` of ``reference`` for this
+            target, when the caller has it (saves computing the goals again).
 
     Returns:
         metric name -> value over the whole motion (``g_mpbpe`` [m], ``mpboe`` [rad], ``mpbve`` [m/s],
@@ -223,9 +227,12 @@ def sequence_metrics(reference: np.ndarray, source: Skeleton, motion: TargetMoti
     from .metrics import window_metrics
 
     tgt = motion.skeleton
-    feats, scaled, shift, _ = prepare_reference(reference, source, tgt)
-    batch = collate([TrainingSample(feats.astype(np.float32), source, tgt, joint_map(tgt, source))])
+    feats, scaled, shift, (goal_rot, rot_mask) = prepared or prepare_reference(reference, source, tgt)
+    batch = collate([TrainingSample(feats[:4].astype(np.float32), source, tgt, joint_map(tgt, source))])  # the graphs
+    batch["reference"] = torch.from_numpy(feats.astype(np.float32))[None]
     batch["ref_scaled_pos"] = torch.from_numpy(scaled)[None]
+    batch["ref_goal_rot"] = torch.from_numpy(goal_rot)[None]
+    batch["ref_rot_mask"] = torch.from_numpy(rot_mask)[None]
     out = {"q": torch.from_numpy(np.asarray(motion.q))[None], "base_pos": torch.from_numpy(np.asarray(motion.base_pos) - shift)[None],
            "base_rot": torch.from_numpy(np.asarray(motion.base_rot))[None]}
     return {k: float(v[0]) for k, v in window_metrics(out, batch, motion.fps).items()}
