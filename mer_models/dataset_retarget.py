@@ -46,7 +46,7 @@ from .kinematics import graph_from_batch
 from .long_horizon import prepare_reference
 from .optimize import optimize_motion
 from .retarget import MODEL_FPS, retarget_features, sequence_metrics, source_features
-from .writers import TargetMotion, write_csv, write_npz
+from .writers import NPZ_FPS, TargetMotion, write_csv, write_npz
 
 log = logging.getLogger(__name__)
 
@@ -174,19 +174,20 @@ def _solve_batch(items: list[tuple[_Clip, tuple[int, int, int, int]]], src: Skel
         c.pending -= 1
 
 
-def _finish(c: _Clip, target: Skeleton, src: Skeleton, formats: Sequence[str], method: str, seconds: float) -> dict:
+def _finish(c: _Clip, target: Skeleton, src: Skeleton, formats: Sequence[str], method: str, seconds: float,
+            npz_fps: float | None = NPZ_FPS) -> dict:  # fmt: skip
     """Write a finished clip's outputs (metrics file last) and return its summary row."""
     motion = TargetMotion(target, MODEL_FPS, c.q[:, : target.num_nodes], c.base_pos + c.shift, c.base_rot)
     prepared = (c.feats, c.scaled, c.shift, (c.goal_rot, c.rot_mask))
-    return _write(c.job, motion, c.world_feats, src, formats, method, seconds, prepared)
+    return _write(c.job, motion, c.world_feats, src, formats, method, seconds, prepared, npz_fps)
 
 
 def _write(job: Job, motion: TargetMotion, world_feats: np.ndarray, src: Skeleton, formats, method: str, seconds: float,
-           prepared: tuple | None = None) -> dict:  # fmt: skip
+           prepared: tuple | None = None, npz_fps: float | None = NPZ_FPS) -> dict:  # fmt: skip
     if "csv" in formats:
         write_csv(job.output("csv"), motion)
     if "npz" in formats:
-        write_npz(job.output("npz"), motion)
+        write_npz(job.output("npz"), motion, fps=npz_fps)
     metrics = sequence_metrics(world_feats, src, motion, prepared=prepared)
     row = {"clip": job.clip, "target": job.target, "frames": motion.num_frames, "method": method, "seconds": round(seconds, 3),
            **{k: metrics[k] for k in SUMMARY_KEYS}}  # fmt: skip
@@ -206,6 +207,7 @@ def retarget_dataset(
     shard_index: int = 0,
     num_shards: int = 1,
     input_fps: float = MODEL_FPS,
+    npz_fps: float | None = NPZ_FPS,
     segment: int = 512,
     context: int = 8,
     frames_per_batch: int = 8192,
@@ -218,7 +220,7 @@ def retarget_dataset(
 
     Args:
         method: ``optimize`` (batched across clips) or ``diffusion`` (``checkpoint`` required).
-        formats: any of :data:`FORMATS`; the metrics file is always written.
+        formats: any of :data:`FORMATS`; the metrics file is always written; npz_fps: npz frame rate [Hz].
         progress: called with (pairs done, pairs to do) of this run's work.
         model_kw: sampler options for ``diffusion`` (``steps``, ``guidance``, ``seed``, ``allow_unseen``).
 
@@ -253,7 +255,7 @@ def retarget_dataset(
                 c = _read(j, src, target, input_fps)
                 res = retarget_features(c.world_feats, src, target, method="diffusion", checkpoint=checkpoint, fps=MODEL_FPS, **model_kw)
                 prepared = (c.feats, c.scaled, c.shift, (c.goal_rot, c.rot_mask))
-                _write(j, res.motion, c.world_feats, src, formats, method, time.perf_counter() - t0, prepared)
+                _write(j, res.motion, c.world_feats, src, formats, method, time.perf_counter() - t0, prepared, npz_fps)
                 frames_done += res.motion.num_frames
                 pairs_done += 1
                 if progress is not None:
@@ -275,7 +277,7 @@ def retarget_dataset(
                 _solve_batch(items, src, target, span, energy, device)
                 for c2 in dict.fromkeys(c for c, _ in items):
                     if c2.pending == 0:
-                        _finish(c2, target, src, formats, method, time.perf_counter() - started[c2.job.clip])
+                        _finish(c2, target, src, formats, method, time.perf_counter() - started[c2.job.clip], npz_fps)
                         frames_done += c2.feats.shape[0]
                         pairs_done += 1
                         if progress is not None:

@@ -37,7 +37,7 @@ from .kinematics import graph_from_batch
 from .long_horizon import prepare_reference, retarget_sequence
 from .ik import DEFAULT_SMOOTH
 from .optimize import DEFAULT_GN_ITERS, DEFAULT_ITERS, optimize_motion
-from .writers import TargetMotion, check_motion_finite, write_csv, write_mcap, write_npz
+from .writers import NPZ_FPS, TargetMotion, check_motion_finite, write_csv, write_mcap, write_npz
 
 log = logging.getLogger(__name__)
 
@@ -172,6 +172,7 @@ def retarget_file(
     method: str = "diffusion",
     input_fps: float = MODEL_FPS,
     device: str = "cpu",
+    npz_fps: float | None = NPZ_FPS,
     **kw,
 ) -> RetargetResult:
     """Read a LAFAN1-layout CSV of ``source``, retarget it to ``target`` and write the outputs.
@@ -197,7 +198,7 @@ def retarget_file(
     if out_csv is not None:
         res.outputs["csv"] = write_csv(out_csv, res.motion)
     if npz is not None:
-        res.outputs["npz"] = write_npz(npz, res.motion)
+        res.outputs["npz"] = write_npz(npz, res.motion, fps=npz_fps)
     if mcap is not None:
         res.outputs["mcap"] = write_mcap(mcap, res.motion, reference_points=res.reference_points)
     if plot is not None:

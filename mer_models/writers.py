@@ -11,7 +11,9 @@ h1_2: the LAFAN1 robot layout), else in the skeleton's node order (``Skeleton.jo
 actuated URDF joints, depth-first; ``mer robots show NAME`` lists them). :func:`csv_columns` gives
 the order.
 
-**npz** (BeyondMimic / mjlab ``csv_to_npz`` keys, at the motion's fps): ``fps``, ``joint_pos``
+**npz** (the mjlab / BeyondMimic ``csv_to_npz`` layout, resampled like ``csv_to_npz`` to
+``fps`` = 50 Hz by default, the trackers' control rate: angles and positions linearly, the base
+orientation by slerp; ``fps=None`` keeps the motion's rate): ``fps``, ``joint_pos``
 (F, D), ``joint_vel`` (F, D), ``body_pos_w`` (F, L, 3), ``body_quat_w`` (F, L, 4, **wxyz**),
 ``body_lin_vel_w``, ``body_ang_vel_w`` (F, L, 3, world frame), plus ``joint_names`` (D,) (the CSV's
 joint order) and ``body_names`` (L,): the URDF links of the base and of every joint node.
@@ -36,10 +38,13 @@ from mer_data.features import finite_difference
 from mer_data.finite import require_finite
 from mer_data.fk import fk_skeleton, link_rotations, skeleton_tensors
 from mer_data.registry import load_robot
-from mer_data.rotations import matrix_to_axis_angle, matrix_to_quat
+from mer_data.rotations import matrix_to_axis_angle, matrix_to_quat, quat_slerp, quat_to_matrix
 from mer_data.skeleton import Skeleton
 
-__all__ = ["TargetMotion", "csv_columns", "check_motion_finite", "write_csv", "write_npz", "write_mcap"]
+__all__ = ["TargetMotion", "csv_columns", "check_motion_finite", "resample_motion", "write_csv", "write_npz", "write_mcap", "NPZ_FPS"]
+
+#: Frame rate of npz outputs: the control rate of the mjlab / BeyondMimic trackers [Hz].
+NPZ_FPS = 50.0
 
 
 @dataclass(frozen=True)
@@ -139,9 +144,30 @@ def body_arrays(motion: TargetMotion) -> dict[str, np.ndarray]:
     }
 
 
-def write_npz(path: str | Path, motion: TargetMotion) -> Path:
-    """BeyondMimic-style npz (see module docstring)."""
+def resample_motion(motion: TargetMotion, fps: float) -> TargetMotion:
+    """``motion`` at ``fps`` [Hz] over the same duration (frames at ``k / fps`` up to the last
+    source frame): angles and base position linearly, base orientation by slerp (``csv_to_npz``)."""
+    if fps <= 0 or not np.isfinite(fps):
+        raise ValueError(f"fps must be a positive number, got {fps}")
+    if fps == motion.fps or motion.num_frames < 2:
+        return motion
+    duration = (motion.num_frames - 1) / motion.fps
+    t = np.arange(int(np.floor(duration * fps + 1e-9)) + 1) / fps
+    x = t * motion.fps
+    i = np.minimum(np.floor(x).astype(int), motion.num_frames - 2)
+    a = (x - i)[:, None]
+    q = motion.q[i] * (1 - a) + motion.q[i + 1] * a
+    base_pos = motion.base_pos[i] * (1 - a) + motion.base_pos[i + 1] * a
+    quat = torch.from_numpy(motion.base_quat())
+    rot = quat_to_matrix(quat_slerp(quat[i], quat[i + 1], torch.from_numpy(a[:, 0]))).numpy()
+    return TargetMotion(motion.skeleton, float(fps), q, base_pos, rot)
+
+
+def write_npz(path: str | Path, motion: TargetMotion, *, fps: float | None = NPZ_FPS) -> Path:
+    """The mjlab / BeyondMimic npz at ``fps`` (see module docstring)."""
     check_motion_finite(motion, path)
+    if fps is not None:
+        motion = resample_motion(motion, fps)
     cols = csv_columns(motion.skeleton)
     jp = _joint_matrix(motion, cols)
     arrays = {

@@ -47,7 +47,7 @@ def test_csv_of_a_robot_without_a_layout_uses_node_order(tmp_path):
 
 def test_npz_has_beyondmimic_keys_and_consistent_bodies(tmp_path):
     m = _motion("h1")
-    z = np.load(write_npz(tmp_path / "m.npz", m))
+    z = np.load(write_npz(tmp_path / "m.npz", m, fps=None))
     keys = {"fps", "joint_pos", "joint_vel", "body_pos_w", "body_quat_w", "body_lin_vel_w", "body_ang_vel_w", "joint_names", "body_names"}
     assert keys <= set(z.files)
     F, D = z["joint_pos"].shape
@@ -64,7 +64,7 @@ def test_npz_angular_velocity_of_a_steady_spin(tmp_path):
     F, rate = 30, 1.5  # rad/s about z
     rot = rot_z(torch.arange(F, dtype=torch.float64) * rate / 30.0).numpy()
     m = TargetMotion(s, 30.0, np.zeros((F, s.num_nodes)), np.zeros((F, 3)), rot)
-    z = np.load(write_npz(tmp_path / "spin.npz", m))
+    z = np.load(write_npz(tmp_path / "spin.npz", m))  # at 50 Hz: the spin rate stays 1.5 rad/s
     np.testing.assert_allclose(z["body_ang_vel_w"][:, :, 2], rate, atol=1e-4)
     np.testing.assert_allclose(z["body_ang_vel_w"][:, :, :2], 0.0, atol=1e-5)
 
@@ -94,3 +94,23 @@ def test_png_is_written(tmp_path):
     path = plot_motion(tmp_path / "m.png", m, reference_points=np.zeros((20, 2, 3)), panels=4)
     data = path.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 5000
+
+
+def test_npz_is_written_at_the_trackers_rate_by_lerp_and_slerp(tmp_path):
+    """Default 50 Hz (mjlab / BeyondMimic control rate), like csv_to_npz: a 30 Hz motion would play 1.67x too fast."""
+    from mer_models.writers import resample_motion
+
+    m = _motion("h1")  # 40 frames at 30 Hz: 1.3 s
+    z = np.load(write_npz(tmp_path / "m.npz", m))
+    assert float(z["fps"]) == 50.0 and z["joint_pos"].shape[0] == 66  # frames at 0, 1/50, ... 1.3 s
+    r = resample_motion(m, 50.0)
+    np.testing.assert_allclose(r.q[::5], m.q[::3], atol=1e-12)  # every 0.1 s both have a frame
+    np.testing.assert_allclose(r.base_rot[::5], m.base_rot[::3], atol=1e-9)
+    half = resample_motion(TargetMotion(m.skeleton, 30.0, m.q[:2], m.base_pos[:2], m.base_rot[:2]), 60.0)
+    np.testing.assert_allclose(half.q[1], (m.q[0] + m.q[1]) / 2, atol=1e-12)
+    np.testing.assert_allclose(half.base_pos[1], (m.base_pos[0] + m.base_pos[1]) / 2, atol=1e-12)
+    from mer_data.rotations import rotation_angle_between
+
+    a = float(rotation_angle_between(torch.from_numpy(half.base_rot[1]), torch.from_numpy(m.base_rot[0])))
+    b = float(rotation_angle_between(torch.from_numpy(m.base_rot[1]), torch.from_numpy(m.base_rot[0])))
+    assert abs(a - b / 2) < 1e-9  # slerp: half the turn

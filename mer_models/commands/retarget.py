@@ -29,7 +29,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     d.add_argument("--json", action="store_true", help="print the summary as JSON instead of a table")
     d.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("-o", "--output", help="output CSV in the target's LAFAN1-style layout")
-    p.add_argument("--npz", help="also write a BeyondMimic-style npz")
+    p.add_argument("--npz", help="also write an npz in the mjlab / BeyondMimic layout (docs/trackers.md)")
+    p.add_argument("--npz-fps", type=float, default=50.0, help="frame rate of npz outputs [Hz] (default 50, the trackers' rate; "
+                   "resampled like csv_to_npz: lerp + slerp)")
     p.add_argument("--mcap", help="also write a Foxglove MCAP")
     p.add_argument("--plot", help="also write a PNG of stick figures over time")
     p.add_argument("--model", help="checkpoint folder, zoo name or ORG/NAME for --method diffusion "
@@ -66,7 +68,7 @@ def cmd_retarget(args) -> int:
         print(f"no --model: using the bundled demo model {model!r} (synthetic training, not for real use)", file=sys.stderr)
     res = retarget_file(
         args.input, args.source, args.target, out_csv=args.output, npz=args.npz, mcap=args.mcap, plot=args.plot,
-        model=model, method=args.method, input_fps=args.fps, device=args.device, **kw,
+        model=model, method=args.method, input_fps=args.fps, device=args.device, npz_fps=args.npz_fps, **kw,
     )  # fmt: skip
     m = res.motion
     print(f"{args.source} -> {args.target} ({res.method}): {m.num_frames} frames at {m.fps:g} Hz", file=sys.stderr)
@@ -111,7 +113,7 @@ def _dataset(args) -> int:
     try:
         summary = retarget_dataset(
             args.input_dir, args.source, args.targets, args.out, method=method, checkpoint=checkpoint,
-            formats=args.formats, shard_index=args.shard_index, num_shards=args.num_shards, input_fps=args.fps,
+            formats=args.formats, shard_index=args.shard_index, num_shards=args.num_shards, input_fps=args.fps, npz_fps=args.npz_fps,
             device=args.device, progress=progress, **kw,
         )  # fmt: skip
     finally:
