@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Literal
 
 import numpy as np
@@ -229,7 +230,7 @@ def _ratio(a: float, b: float, fallback: float) -> float:
 def segment_ratios(ref: Skeleton, target: Skeleton) -> dict[str, float]:
     """Per key point of the reference, the factor its segment (from its chain parent) is scaled by,
     plus ``"root"``; see the module docstring."""
-    plan = _segment_plan(ref, target)
+    plan = _plan(ref, target)
     names = {v: k for k, v in ref.keypoints.items() if v >= 0}
     out = {ROOT_PART: plan.root}
     out.update({names[n]: r for n, r in plan.width.items()})
@@ -322,6 +323,13 @@ def _rigid(skel: Skeleton, a: int, b: int) -> bool:
     return n == a
 
 
+@lru_cache(maxsize=512)
+def _plan(ref: Skeleton, target: Skeleton) -> _SegmentPlan:
+    """:func:`_segment_plan`, once per pair of skeleton objects (immutable, hashed by identity):
+    collate asks for it for every sample, and most samples share their pair."""
+    return _segment_plan(ref, target)
+
+
 def _replace_root(plan: _SegmentPlan, root: float) -> _SegmentPlan:
     from dataclasses import replace
 
@@ -391,7 +399,7 @@ def scale_reference_positions(
     if method != "segments":
         raise ValueError(f"unknown scaling method {method!r}; known: {', '.join(SCALING_METHODS)}")
     rot = np.broadcast_to(np.eye(3), positions.shape + (3,)) if rotations is None else np.asarray(rotations, np.float64)
-    return _apply_segments(positions, rot, _segment_plan(ref, target), origin_xy)
+    return _apply_segments(positions, rot, _plan(ref, target), origin_xy)
 
 
 def _min_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -80,8 +80,7 @@ def find_clips(input_spec: str, source: str) -> dict[str, Path]:
     root = resolve_input(input_spec, [source])
     if (root / source).is_dir():
         return discover_clips(root, [source])[source]
-    flat = {clip_name(p): p for p in sorted(root.iterdir()) if clip_name(p) is not None}
-    if not flat:
+    if not any(clip_name(p) is not None for p in root.iterdir()):
         raise MerError(
             f"no motions of {source!r} in the input: neither {source}/*.csv nor *.csv",
             path=root,
@@ -158,8 +157,8 @@ def _solve_batch(items: list[tuple[_Clip, tuple[int, int, int, int]]], src: Skel
     goal = np.stack([pad(c.scaled[a:b]) for c, (a, b, _, _) in items])
     grot = np.stack([pad(c.goal_rot[a:b]) for c, (a, b, _, _) in items])
     rvec = np.stack([pad(c.feats[a:b, 0, 0:3]) for c, (a, b, _, _) in items])
-    batch = collate([TrainingSample(items[0][0].feats[:3].astype(np.float32), src, target, eta)] * B)
-    g = graph_from_batch(batch, "tgt", device)
+    one = collate([TrainingSample(items[0][0].feats[:3].astype(np.float32), src, target, eta)])  # the target's graph
+    g = graph_from_batch(one, "tgt", device).select(torch.zeros(B, dtype=torch.long, device=device))
     out = optimize_motion(
         energy, g, torch.from_numpy(eta.astype(np.float32))[None].expand(B, -1, -1).to(device),
         torch.from_numpy(goal).float().to(device), axis_angle_to_matrix(torch.from_numpy(rvec).float()).to(device),

@@ -145,17 +145,17 @@ def body_arrays(motion: TargetMotion) -> dict[str, np.ndarray]:
 
 
 def resample_motion(motion: TargetMotion, fps: float) -> TargetMotion:
-    """``motion`` at ``fps`` [Hz] over the same duration (frames at ``k / fps`` up to the last
-    source frame): angles and base position linearly, base orientation by slerp (``csv_to_npz``)."""
+    """``motion`` at ``fps`` [Hz] on :func:`mer_data.resample.output_times`' grid: angles and base
+    position linearly, base orientation by slerp (as ``csv_to_npz`` and :func:`mer_data.resample.resample`)."""
+    from mer_data.resample import output_times
+
     if fps <= 0 or not np.isfinite(fps):
         raise ValueError(f"fps must be a positive number, got {fps}")
     if fps == motion.fps or motion.num_frames < 2:
         return motion
-    duration = (motion.num_frames - 1) / motion.fps
-    t = np.arange(int(np.floor(duration * fps + 1e-9)) + 1) / fps
-    x = t * motion.fps
-    i = np.minimum(np.floor(x).astype(int), motion.num_frames - 2)
-    a = (x - i)[:, None]
+    u = output_times(motion.num_frames, motion.fps, fps)
+    i = np.minimum(np.floor(u).astype(int), motion.num_frames - 2)
+    a = (u - i)[:, None]
     q = motion.q[i] * (1 - a) + motion.q[i + 1] * a
     base_pos = motion.base_pos[i] * (1 - a) + motion.base_pos[i + 1] * a
     quat = torch.from_numpy(motion.base_quat())

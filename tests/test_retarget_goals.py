@@ -84,14 +84,12 @@ def test_the_base_goal_means_the_pelvis_on_every_robot():
     pos = b["ref_scaled_pos"][0].double()
     hips = [g1.keypoints["left_hip"], g1.keypoints["right_hip"]]
     up = pos[:, 0] - pos[:, hips].mean(1)  # scaled base relative to the scaled pelvis centre
-    r = talos.rest_positions
-    want = -(r[[talos.keypoints["left_hip"], talos.keypoints["right_hip"]]].mean(0))
+    c_t = talos.rest_positions[[talos.keypoints["left_hip"], talos.keypoints["right_hip"]]].mean(0)  # pelvis centres,
+    c_r = g1.rest_positions[hips].mean(0)  # each in its robot's root frame
     rot = axis_angle_to_matrix(torch.from_numpy(w[:, 0, 0:3]).double())
-    hip_mid_ref = torch.from_numpy(w[:, hips, 1:4]).double().mean(1)
-    # per frame: the reference's base-to-pelvis vector, corrected by the rotated difference of pelvis offsets
-    ref_up = torch.from_numpy(w[:, 0, 3:6]).double() - hip_mid_ref
-    c_r = g1.rest_positions[hips].mean(0)
-    expect = ref_up + (rot @ torch.from_numpy(-want - c_r)[:, None])[..., 0] * -1
+    # per frame: the reference's base-to-pelvis vector, less the rotated difference of the pelvis offsets
+    ref_up = torch.from_numpy(w[:, 0, 3:6]).double() - torch.from_numpy(w[:, hips, 1:4]).double().mean(1)
+    expect = ref_up - (rot @ torch.from_numpy(c_t - c_r)[:, None])[..., 0]
     torch.testing.assert_close(up, expect, atol=1e-5, rtol=0)
     assert float(up[:, 2].mean()) > float(ref_up[:, 2].mean()) + 0.1  # Talos' base is 0.27 m above its hips
 
