@@ -36,6 +36,8 @@ class TrainingSample:
         target: (T, J_target, 9) float32 features of the same window on the target robot, when
             that robot has data for the clip (unaugmented targets only); else None.
         provenance: robot, clip, start frame, source sha256, target, augmentation index.
+        teacher: (T, J_target, 9) float32 features of the optimiser's solution for this sample
+            (window frame; from the shard's teacher file, :mod:`mer_data.shards.teacher`), or None.
     """
 
     reference: np.ndarray
@@ -44,6 +46,7 @@ class TrainingSample:
     joint_map: np.ndarray
     target: np.ndarray | None = None
     provenance: dict = field(default_factory=dict)
+    teacher: np.ndarray | None = None
 
 
 def graph_arrays(skel: Skeleton) -> dict[str, np.ndarray]:
@@ -125,7 +128,7 @@ def collate(samples: Sequence[TrainingSample], *, scaling: ScalingMethod = "segm
     """Pad samples into a batch.
 
     Returns tensors ``reference`` (B, T, Jr, 9), ``target`` (B, T, Jt, 9) (zeros where absent) with
-    ``has_target`` (B,), ``joint_map`` (B, Jt, Jr), ``ref_scaled_pos`` (B, T, Jr, 3) (the reference
+    ``has_target`` (B,), ``teacher`` (B, T, Jt, 9) with ``has_teacher`` (B,) likewise, ``joint_map`` (B, Jt, Jr), ``ref_scaled_pos`` (B, T, Jr, 3) (the reference
     node positions scaled to the target by ``scaling``, :mod:`mer_data.scaling`), ``ref_goal_rot``
     (B, T, Jr, 3, 3) and ``ref_rot_mask`` (B, Jr) (orientation goals: :func:`reference_goals`),
     and per side (``ref_*``, ``tgt_*``) the graph
@@ -147,6 +150,8 @@ def collate(samples: Sequence[TrainingSample], *, scaling: ScalingMethod = "segm
     batch["reference"] = torch.zeros(B, T, Jr, 9)
     batch["target"] = torch.zeros(B, T, Jt, 9)
     batch["has_target"] = torch.zeros(B, dtype=torch.bool)
+    batch["teacher"] = torch.zeros(B, T, Jt, 9)
+    batch["has_teacher"] = torch.zeros(B, dtype=torch.bool)
     batch["joint_map"] = torch.zeros(B, Jt, Jr)
     batch["ref_scaled_pos"] = torch.zeros(B, T, Jr, 3)
     batch["ref_goal_rot"] = torch.eye(3).expand(B, T, Jr, 3, 3).clone()
@@ -157,6 +162,9 @@ def collate(samples: Sequence[TrainingSample], *, scaling: ScalingMethod = "segm
         if s.target is not None:
             batch["target"][b, :, :jt] = torch.from_numpy(np.asarray(s.target, np.float32))
             batch["has_target"][b] = True
+        if s.teacher is not None:
+            batch["teacher"][b, :, :jt] = torch.from_numpy(np.asarray(s.teacher, np.float32))
+            batch["has_teacher"][b] = True
         batch["joint_map"][b, :jt, :jr] = torch.from_numpy(s.joint_map.astype(np.float32))
         scaled, goal_rot, rot_mask = reference_goals(s.reference, s.reference_skeleton, s.target_skeleton, scaling=scaling)
         batch["ref_scaled_pos"][b, :, :jr] = torch.from_numpy(scaled)

@@ -16,6 +16,7 @@ from . import demo as demo_cli
 from .commands import evaluate as evaluate_cli
 from .commands import finetune as finetune_cli
 from .commands import retarget as retarget_cli
+from .commands import solve as solve_cli
 from .commands import train as train_cli
 from .zoo import cli as zoo_cli
 
@@ -30,7 +31,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-vv for debug)")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     robots_cli.add_parser(sub)
-    shards_cli.add_parser(sub)
+    solve_cli.add_parser(shards_cli.add_parser(sub))
     demo_cli.add_parser(sub)
     train_cli.add_parser(sub)
     finetune_cli.add_parser(sub)

@@ -37,6 +37,7 @@ log = logging.getLogger(__name__)
 __all__ = ["EvalOptions", "collect_windows", "evaluate", "format_table", "DOMAINS"]
 
 DOMAINS = ("in-domain", "out-of-domain")
+METHODS = ("model", "refine", "optimize")
 
 
 @dataclass(frozen=True)
@@ -47,12 +48,14 @@ class EvalOptions:
         split: ``paper``, ``all`` or a split file (:func:`mer_data.splits.resolve_split`).
         window, stride: window length and stride [frames].
         max_windows: at most this many windows per domain, spread evenly over the clips (None: all).
-        methods: ``model`` and/or ``optimize``.
+        methods: ``model``, ``refine`` (the model, then at most ``refine`` optimiser iterations from
+            its output) and/or ``optimize``.
         steps, guidance: sampler overrides (None: the checkpoint's).
         batch_size: windows per forward pass.
         seed: sampling noise.
         opt_iters, opt_gn_iters: the optimiser's Adam and (most) Levenberg-Marquardt iterations.
         scaling: how the reference is scaled to the target (:mod:`mer_data.scaling`).
+        refine: Levenberg-Marquardt iterations of the ``refine`` method.
     """
 
     split: str = "paper"
@@ -67,6 +70,7 @@ class EvalOptions:
     opt_iters: int = DEFAULT_ITERS
     opt_gn_iters: int = DEFAULT_GN_ITERS
     scaling: str = "segments"
+    refine: int = 5
 
 
 def _clip_files(folder: Path) -> dict[str, Path]:
@@ -164,10 +168,10 @@ def evaluate(
     for name in (source, *targets):
         load_robot(name)
     methods = tuple(opts.methods)
-    unknown = [m for m in methods if m not in ("model", "optimize")]
+    unknown = [m for m in methods if m not in METHODS]
     if unknown:
-        raise MerError(f"unknown method(s) {unknown}; known: model, optimize")
-    if "model" in methods:
+        raise MerError(f"unknown method(s) {unknown}; known: {', '.join(METHODS)}")
+    if "model" in methods or "refine" in methods:
         if checkpoint is None:
             raise MerError("evaluating the model needs --model", fix="pass --model PATH, or --methods optimize")
         for t in targets:
@@ -195,17 +199,21 @@ def evaluate(
                         for x, gt in zip(w[a : a + opts.batch_size], gts[a : a + opts.batch_size])
                     ]
                     batch = collate(samples, scaling=opts.scaling)
-                    if method == "model":
+                    if method in ("model", "refine"):
                         run = checkpoint.run
                         sampler = run.sampler if opts.guidance is None else SamplerConfig(**{**run.sampler.__dict__, "guidance": float(opts.guidance)})
                         gen = torch.Generator().manual_seed(opts.seed + a)
                         motion = sample_batch(checkpoint.model, batch, sampler, energy=model_energy, steps=opts.steps, generator=gen)
+                        if method == "refine":
+                            motion = optimize_batch(opt_energy, batch, gn_iters=opts.refine, init=motion)
                     else:
                         motion = optimize_batch(opt_energy, batch, iters=opts.opt_iters, gn_iters=opts.opt_gn_iters)
                     for k, v in window_metrics(motion, batch, keypoints={"base": 0, **tgt.keypoints}).items():
                         vals.setdefault(k, []).append(v)
                 summary = summarize({k: np.concatenate(v) for k, v in vals.items()})
-                row = {"robot": target, "domain": dom, "method": method, "windows": len(w), "seconds": round(time.time() - t0, 2), "metrics": summary}
+                sec = time.time() - t0
+                row = {"robot": target, "domain": dom, "method": method, "windows": len(w), "seconds": round(sec, 2),
+                       "frames_per_s": round(len(w) * opts.window / max(sec, 1e-9), 1), "metrics": summary}  # fmt: skip
                 rows.append(row)
                 if progress is not None:
                     progress(f"{target:9s} {dom:13s} {method:8s} {len(w)} windows, {row['seconds']} s")
@@ -234,7 +242,7 @@ def _cell(m: dict, k: str) -> str:
 def format_table(report: dict) -> str:
     """The report as text in the paper's layout: an in-domain block, then an out-of-domain block."""
     lines = [f"source {report['source']}  model {report['model'] or '-'}  split {report['options']['split']}"]
-    head = f"{'robot':10s} {'method':9s} {'win':>5s}  " + "  ".join(f"{t:>18s}" for _, t in _COLS)
+    head = f"{'robot':10s} {'method':9s} {'win':>5s} {'fr/s':>7s}  " + "  ".join(f"{t:>18s}" for _, t in _COLS)
     has_gt = any(np.isfinite(r["metrics"].get("gt_mpbpe", {}).get("mean", np.nan)) for r in report["rows"])
     if has_gt:
         head += "  " + "  ".join(f"{t:>16s}" for _, t in _GT_COLS)
@@ -244,7 +252,7 @@ def format_table(report: dict) -> str:
             continue
         lines += ["", f"{dom}", head]
         for r in rows:
-            s = f"{r['robot']:10s} {r['method']:9s} {r['windows']:5d}  " + "  ".join(f"{_cell(r['metrics'], k):>18s}" for k, _ in _COLS)
+            s = f"{r['robot']:10s} {r['method']:9s} {r['windows']:5d} {r.get('frames_per_s', float('nan')):7.0f}  " + "  ".join(f"{_cell(r['metrics'], k):>18s}" for k, _ in _COLS)
             if has_gt:
                 s += "  " + "  ".join(f"{_cell(r['metrics'], k):>16s}" for k, _ in _GT_COLS)
             lines.append(s)

@@ -88,7 +88,7 @@ def _reference_points(scaled: np.ndarray, shift: np.ndarray, eta: np.ndarray) ->
 
 
 def _optimize_sequence(feats, scaled, rot_goals, ref: Skeleton, target: Skeleton, eta, energy: EnergyConfig, fps, iters, gn_iters, device,
-                       smooth: float = DEFAULT_SMOOTH):
+                       smooth: float = DEFAULT_SMOOTH, init: dict | None = None):
     from mer_data.samples import TrainingSample, collate
 
     batch = collate([TrainingSample(feats[:3].astype(np.float32), ref, target, eta)])
@@ -98,8 +98,11 @@ def _optimize_sequence(feats, scaled, rot_goals, ref: Skeleton, target: Skeleton
     eta_t = torch.from_numpy(eta.astype(np.float32))[None].to(device)
     goal_rot = torch.from_numpy(rot_goals[0]).float()[None].to(device)
     rot_mask = torch.from_numpy(rot_goals[1])[None].to(device)
+    warm = None
+    if init is not None:
+        warm = {k: torch.from_numpy(np.asarray(init[k])).float()[None].to(device) for k in ("q", "base_pos", "base_rot")}
     out = optimize_motion(energy, g, eta_t, goal, rot, iters=iters, gn_iters=gn_iters, fps=fps, goal_rot=goal_rot, rot_mask=rot_mask,
-                        smooth=smooth)
+                        smooth=smooth, init=warm)
     return {k: out[k][0].double().cpu().numpy() for k in ("q", "base_pos", "base_rot")}
 
 
@@ -119,13 +122,15 @@ def retarget_features(
     opt_gn_iters: int = DEFAULT_GN_ITERS,
     opt_smooth: float = DEFAULT_SMOOTH,
     energy: EnergyConfig | None = None,
+    refine: int = 0,
     progress: Callable[[int, int], None] | None = None,
 ) -> RetargetResult:
     """Retarget source features (F, Jr, 9) (world frame, at ``fps``) to ``target``.
 
     ``checkpoint`` is required for ``diffusion``; ``steps``/``guidance`` override its sampler
     configuration. ``opt_*`` and ``energy`` set the optimiser (``opt_smooth``: its temporal prior,
-    :mod:`mer_models.ik`). ``allow_unseen`` retargets to a robot the model never saw (zero-shot; the
+    :mod:`mer_models.ik`). ``refine`` > 0 warm-starts the optimiser from the model's output for at
+    most that many Levenberg-Marquardt iterations (diffusion only). ``allow_unseen`` retargets to a robot the model never saw (zero-shot; the
     paper fine-tunes instead).
     """
     if method not in METHODS:
@@ -150,6 +155,13 @@ def retarget_features(
             checkpoint.model, reference, ref, tgt, sampler, energy=energy or run.energy, fps=fps, steps=steps,
             seed=seed, eta=eta, progress=progress,
         )  # fmt: skip
+        if refine > 0:
+            device = next(checkpoint.model.parameters()).device
+            init = {"q": out["q"], "base_pos": np.asarray(out["base_pos"]) - shift, "base_rot": out["base_rot"]}
+            out = _optimize_sequence(feats, scaled, rot_goals, ref, tgt, eta, energy or EnergyConfig(), fps, 0, refine, device,
+                                     smooth=opt_smooth, init=init)  # fmt: skip
+            out["base_pos"] = out["base_pos"] + shift
+            method = f"diffusion+refine{refine}"
     else:
         device = next(checkpoint.model.parameters()).device if checkpoint is not None else torch.device("cpu")
         out = _optimize_sequence(feats, scaled, rot_goals, ref, tgt, eta, energy or EnergyConfig(), fps, opt_iters, opt_gn_iters, device,

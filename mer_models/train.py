@@ -4,9 +4,9 @@ Loss per sample::
 
     weight(sigma) * mean || D(x + n, sigma, C) - x ||^2  +  lambda * f_kin(D(x + n, sigma, C))
 
-with ``ln sigma ~ N(P_mean, P_std^2)``. ``x`` is the target robot's own window when the data has
-one (``has_target``); otherwise the optimisation baseline's solution on that window (per-frame
-Levenberg-Marquardt IK on the same energy, computed on the fly; docs/model.md says why).
+with ``ln sigma ~ N(P_mean, P_std^2)``. ``x`` is the optimiser's solution of the sample: read from
+the shards' teacher files (``mer shards solve``), or, as the fallback, solved on the fly
+(:func:`clean_samples`; docs/model.md says why).
 
 Exact resume: the data order is a pure function of (seed, epoch), the position in the epoch,
 the noise generator, the global torch RNG (dropout) and the optimiser moments are all saved, so
@@ -99,13 +99,21 @@ class _OrderSampler:
 
 
 def clean_samples(model: RetargetModel, batch: Mapping, cond: Conditions, run: RunConfig) -> torch.Tensor:
-    """The clean ``x`` of every sample (diffusion space, canonical frame).
+    """The clean ``x`` of every sample (diffusion space, canonical frame): the optimiser's solution.
 
-    The target window where the batch has one; else the optimisation baseline's solution
-    (``run.train.opt_iters`` Levenberg-Marquardt iterations from the nominal pose).
+    Read from the shards' teacher files where the batch has them (``has_teacher``: ``mer shards
+    solve``); else solved on the fly (``run.train.opt_iters`` Levenberg-Marquardt iterations), the
+    fallback. A target robot's own motion window is never ``x``: it is not what the energy tracks
+    (the scaled reference), so one teacher serves every target (docs/model.md).
     """
-    has = batch["has_target"].to(cond.rot.device)
-    x = model.target_sample(batch["target"], cond)
+    dev = cond.rot.device
+    B = cond.rot.shape[0]
+    has = batch["has_teacher"].to(dev) if "has_teacher" in batch else torch.zeros(B, dtype=torch.bool, device=dev)
+    mask = cond.tgt_graph.mask[:, None, :, None]
+    x = torch.zeros(cond.shape, device=dev)
+    if bool(has.any()):
+        t = transform_features(batch["teacher"].to(dev, torch.float32), cond.rot, cond.origin)
+        x = torch.where(has[:, None, None, None], normalize(t, model.cfg) * mask, x)
     if bool((~has).any()):
         with torch.no_grad():
             sel = torch.nonzero(~has).flatten()

@@ -59,16 +59,19 @@ def test_existing_checkpoint_needs_resume(tmp_path):
         train(micro_run(), dataset(), tmp_path / "new", steps=2, resume=True)
 
 
-def test_clean_sample_is_the_data_or_the_optimisation_baseline():
+def test_clean_sample_without_a_teacher_is_the_optimisers_solution():
+    """No teacher file: every sample is solved on the fly, its own data window included (one
+    teacher for every target; the data window is not what the energy tracks)."""
     run = micro_run()
     m = RetargetModel(MICRO)
     b = mixed_batch(("g1", "h1"))
+    assert b["has_target"][0] and not b["has_teacher"].any()
     cond = m.conditions(b)
     x = clean_samples(m, b, cond, run)
-    torch.testing.assert_close(x[0], m.target_sample(b["target"], cond)[0])  # G1: its own window
+    assert not torch.allclose(x[0], m.target_sample(b["target"], cond)[0], atol=1e-3)  # not G1's own window
     e = m.energy(x, cond, run.energy)
-    assert float(e["cst"][1]) < 1e-6  # H1: FK-consistent features of the IK solution
-    assert float(e["kp"][1]) < 0.02
+    assert float(e["cst"].max()) < 1e-6  # FK-consistent features of the IK solutions
+    assert float(e["kp"].max()) < 0.02
 
 
 @pytest.mark.slow

@@ -11,9 +11,10 @@ from ..shards import BuildConfig, build_shards, format_inspection, inspect_shard
 from ..shards.config import FORMATS, PAPER_TARGETS
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
+def add_parser(sub: argparse._SubParsersAction) -> argparse._SubParsersAction:
+    """Add ``mer shards``; returns its sub-command group (``mer_models`` adds ``solve`` to it)."""
     p = sub.add_parser("shards", help="build and inspect training shards (LAFAN1 robot CSVs -> HDF5/MCAP)")
-    ss = p.add_subparsers(dest="shards_cmd", required=True, metavar="{build,inspect,card}")
+    ss = p.add_subparsers(dest="shards_cmd", required=True, metavar="{build,inspect,card,solve}")
 
     b = ss.add_parser("build", help="build training shards from robot motion CSVs or synthetic motion")
     src = b.add_mutually_exclusive_group(required=True)
@@ -48,6 +49,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--out", metavar="FILE", help="where to write it (default DIR/README.md)")
     c.add_argument("--input-label", metavar="INPUT", help="input to show in the rebuild command (e.g. hf://OWNER/NAME)")
     c.set_defaults(func=cmd_card)
+    return ss
 
 
 def cmd_build(args) -> int:

@@ -6,6 +6,9 @@ A sample is (window, target robot, variant); variant 0 is the target's URDF skel
 has a window of the same clip and start frame in the given shards (G1 and H1 share the LAFAN1
 clips), variant-0 samples carry it as ``target``.
 
+Teacher targets: where a shard has a teacher file (``mer shards solve``,
+:mod:`mer_data.shards.teacher`), every sample carries the optimiser's solution as ``teacher``.
+
 Use :func:`mer_data.samples.collate` as the ``collate_fn``; workers are fine (each process opens
 its own file handles).
 """
@@ -26,6 +29,7 @@ from ..samples import TrainingSample
 from ..skeleton import KEYPOINTS, Skeleton
 from ..windows import window_features
 from .reader import PathsLike, ShardFile, find_shards, open_shard
+from .teacher import TeacherFile, teacher_features, teacher_path
 
 __all__ = ["ShardDataset", "WindowRef"]
 
@@ -53,6 +57,9 @@ class ShardDataset(torch.utils.data.Dataset):
         split: keep the samples of ``"train"`` or ``"eval"`` windows only (default: all).
         targets: keep samples whose target robot is one of these (default: all stored targets).
         augmented: keep augmented variants (False: only the URDF skeletons, as for evaluation).
+        teacher: ``"auto"`` (default): read each shard's teacher file where one exists
+            (``<shard folder>/teacher/<shard>.h5``); ``True``: require them; a folder: require them
+            there; ``None``/``False``: ignore them.
     """
 
     def __init__(
@@ -62,10 +69,12 @@ class ShardDataset(torch.utils.data.Dataset):
         split: str | None = None,
         targets: Iterable[str] | None = None,
         augmented: bool = True,
+        teacher: bool | str | Path | None = "auto",
     ) -> None:
         self.paths = find_shards(paths)
         self.files: list[ShardFile] = [open_shard(p) for p in self.paths]
         self._check_compatible()
+        self.teachers: list[TeacherFile | None] = [self._open_teacher(p, f, teacher) for p, f in zip(self.paths, self.files)]
         self._skel_json: dict[str, str] = {}
         for f in self.files:
             for name, text in f.meta.skeletons.items():
@@ -109,6 +118,24 @@ class ShardDataset(torch.utils.data.Dataset):
             self._starts.append(total)
             total += f.num_rows * len(ks)
         self._len = total
+
+    @staticmethod
+    def _open_teacher(path: Path, f: ShardFile, teacher: bool | str | Path | None) -> TeacherFile | None:
+        if teacher is None or teacher is False:
+            return None
+        folder = None if teacher in (True, "auto") else Path(teacher)
+        tp = teacher_path(path, folder)
+        if not tp.is_file():
+            if teacher == "auto":
+                return None
+            raise ShardFormatError(f"no teacher file for this shard (looked for {tp})", path=path,
+                                   fix=f"run: mer shards solve {path.parent}")  # fmt: skip
+        return TeacherFile(tp, f.meta)
+
+    @property
+    def has_teacher(self) -> bool:
+        """True when every shard file has a teacher file."""
+        return all(t is not None for t in self.teachers)
 
     # ---- metadata ---------------------------------------------------------------------------
     def _check_compatible(self) -> None:
@@ -201,12 +228,20 @@ class ShardDataset(torch.utils.data.Dataset):
             tw = self.find_window(t_name, w.clip, w.start_frame)
             if tw is not None:
                 target = self.window_features(tw)
+        taught = None
+        tf = self.teachers[w.file]
+        if tf is not None:
+            sol = tf.solution(w.row, k)
+            if sol is not None:
+                taught = teacher_features(tgt, *sol, m.fps)
         provenance = {
             "robot": w.robot, "clip": w.clip, "start_frame": w.start_frame, "source_sha256": w.source_sha256,
             "split": w.split, "target": t_name, "variant": variant, "augmented": variant > 0,
             "dropped": [KEYPOINTS[x] for x in np.flatnonzero(dropped)], "origin_xy": cols["origin_xy"][w.row].tolist(),
-            "file": Path(self.paths[w.file]).name, "row": w.row, "window": w.id,
+            "file": Path(self.paths[w.file]).name, "row": w.row, "window": w.id, "slot": k,
         }  # fmt: skip
+        if taught is not None:
+            provenance["teacher_energy"] = float(tf.energy[w.row, k])
         return TrainingSample(
             reference=self.window_features(w),
             reference_skeleton=ref,
@@ -214,6 +249,7 @@ class ShardDataset(torch.utils.data.Dataset):
             joint_map=augmented_joint_map(tgt, ref, dropped),
             target=target,
             provenance=provenance,
+            teacher=taught,
         )
 
     def __len__(self) -> int:
@@ -242,3 +278,6 @@ class ShardDataset(torch.utils.data.Dataset):
     def close(self) -> None:
         for f in self.files:
             f.close()
+        for t in self.teachers:
+            if t is not None:
+                t.close()

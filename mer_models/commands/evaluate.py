@@ -19,7 +19,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--source", default="g1", help="reference robot (default g1)")
     p.add_argument("--targets", nargs="+", required=True, help="target robots")
     p.add_argument("--split", default="paper", help="paper, all, or a split file (default paper)")
-    p.add_argument("--methods", nargs="+", default=None, choices=["model", "optimize"], help="default: model and optimize (optimize only without --model)")
+    p.add_argument("--methods", nargs="+", default=None, choices=["model", "refine", "optimize"],
+                   help="default: model and optimize (optimize only without --model); refine: the model, then --refine K optimiser iterations")
+    p.add_argument("--refine", type=int, default=5, metavar="K", help="optimiser iterations of the refine method (default 5)")
     p.add_argument("--stride", type=int, default=60, help="window stride [frames] (default 60)")
     p.add_argument("--max-windows", type=int, help="at most N windows per domain, spread over the clips")
     p.add_argument("--steps", type=int, help="sampler steps (default: the model's)")
@@ -44,7 +46,7 @@ def cmd_evaluate(args) -> int:
     ckpt = resolve_model(args.model, args.device) if args.model else None
     methods = tuple(args.methods or (("model", "optimize") if ckpt is not None else ("optimize",)))
     opts = EvalOptions(split=args.split, stride=args.stride, max_windows=args.max_windows, methods=methods,
-                       steps=args.steps, guidance=args.guidance, batch_size=args.batch_size, seed=args.seed, scaling=args.scaling,
+                       steps=args.steps, guidance=args.guidance, batch_size=args.batch_size, seed=args.seed, scaling=args.scaling, refine=args.refine,
                        **{k: v for k, v in {"opt_iters": args.opt_iters, "opt_gn_iters": args.opt_gn_iters}.items() if v is not None})  # fmt: skip
     report = evaluate(args.input, args.source, args.targets, checkpoint=ckpt, opts=opts,
                       progress=lambda s: print(s, file=sys.stderr))  # fmt: skip

@@ -40,6 +40,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--steps", type=int, help="sampler steps (default: the model's, <= 20)")
     p.add_argument("--guidance", type=float, help="test-time energy guidance step (default: the model's)")
     p.add_argument("--seed", type=int, default=0, help="sampling seed")
+    p.add_argument("--refine", type=int, default=0, metavar="K", help="diffusion: then at most K optimiser iterations from the "
+                   "model's output (fast and exact; default 0: the model alone)")
     p.add_argument("--fps", type=float, default=30.0, help="frame rate of the input (resampled to 30 Hz)")
     p.add_argument("--device", default="cpu")
     p.add_argument("--allow-unseen", action="store_true", help="retarget to a robot the model never saw (zero-shot)")
@@ -57,8 +59,12 @@ def cmd_retarget(args) -> int:
     args.method = args.method or "diffusion"
     if not any([args.output, args.npz, args.mcap, args.plot]):
         raise MerError("nothing to write", fix="give -o OUT.csv and/or --npz/--mcap/--plot")
-    kw = {"steps": args.steps, "guidance": args.guidance, "seed": args.seed, "allow_unseen": args.allow_unseen}
+    if args.refine < 0:
+        raise MerError(f"--refine must be >= 0, got {args.refine}")
+    kw = {"steps": args.steps, "guidance": args.guidance, "seed": args.seed, "allow_unseen": args.allow_unseen, "refine": args.refine}
     if args.method == "optimize":
+        if args.refine:
+            raise MerError("--refine refines a model's output", fix="use it with --method diffusion (the optimiser alone needs no refinement)")
         kw = {}
     model = args.model
     if model is None and args.method == "diffusion":

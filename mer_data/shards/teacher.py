@@ -1,0 +1,110 @@
+"""Teacher files: the optimiser's solution for every training sample of a shard.
+
+A shard stores windows of a source robot and, per window, the samples (target robot x variant);
+its teacher file stores, for each of those samples, the optimiser's solution on that window
+(``mer shards solve``, :mod:`mer_models.teacher`): the target's joint angles and base pose in the
+window's frame, the residual energy, and the solver configuration. Training reads ``x`` from here
+(features by FK at load time, :func:`teacher_features`), so every target, augmented or not, is
+taught by one consistent solver.
+
+Layout (HDF5, one file per shard, ``<shard folder>/teacher/<shard file stem>.h5`` by default; a
+subfolder, so the shard folder's ``*.h5`` glob never mistakes it for a shard):
+
+* ``q`` (rows, S, T, J) float32 [rad]: source-joint angles of the target (padding: 0), as the
+  optimiser returns them (mimic joints are applied at load).
+* ``base_pos`` (rows, S, T, 3) float32 [m] and ``base_rotvec`` (rows, S, T, 3) float32: the base,
+  window frame (world ← base rotation vector).
+* ``energy`` (rows, S) float32: the final weighted energy of the sample.
+* ``solved`` (rows, S) bool: which samples hold a solution (a partial file is resumed from it).
+* root attributes: ``format`` (``mer-teacher``), ``format_version``, ``shard_build_id``,
+  ``shard_file``, ``rows``, ``samples_per_row``, ``solver`` (JSON: energy weights, iterations,
+  scaling, batch) and, when complete, ``seconds`` and ``frames`` (solver throughput).
+
+``S`` is the shard's ``samples_per_row`` (targets x variants) and ``J`` its largest target.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import h5py
+import numpy as np
+import torch
+
+from ..errors import ShardFormatError
+from ..fk import apply_mimic, fk_skeleton, skeleton_tensors
+from ..rotations import axis_angle_to_matrix
+from ..skeleton import Skeleton
+from ..windows import window_features
+from .schema import ShardMeta
+
+__all__ = ["TEACHER_FORMAT", "TEACHER_VERSION", "TEACHER_DIR", "teacher_path", "TeacherFile", "teacher_features"]
+
+TEACHER_FORMAT = "mer-teacher"
+TEACHER_VERSION = 1
+TEACHER_DIR = "teacher"
+
+
+def teacher_path(shard: str | Path, folder: str | Path | None = None) -> Path:
+    """Where the teacher file of ``shard`` lives: ``folder`` (default ``<shard's folder>/teacher``)."""
+    shard = Path(shard)
+    return Path(folder if folder is not None else shard.parent / TEACHER_DIR) / f"{shard.stem}.h5"
+
+
+class TeacherFile:
+    """Read access to a complete teacher file, checked against its shard's metadata."""
+
+    def __init__(self, path: str | Path, meta: ShardMeta) -> None:
+        self.path = Path(path)
+        try:
+            self.file = h5py.File(self.path, "r")
+        except OSError as exc:
+            raise ShardFormatError(f"cannot read the teacher file: {exc}", path=self.path,
+                                   fix="solve again: mer shards solve SHARDS --force") from None  # fmt: skip
+        a = self.file.attrs
+        if a.get("format") != TEACHER_FORMAT:
+            raise ShardFormatError("not a mer teacher file", path=self.path)
+        if int(a.get("format_version", -1)) != TEACHER_VERSION:
+            raise ShardFormatError(f"teacher format version {a.get('format_version')} is not {TEACHER_VERSION}",
+                                   path=self.path, fix="solve again with this version of mer")  # fmt: skip
+        if a.get("shard_build_id") != meta.build_id:
+            raise ShardFormatError(
+                "the teacher file was solved for another build of this shard "
+                f"(build {a.get('shard_build_id')}, the shard is {meta.build_id})",
+                path=self.path,
+                fix="solve again: mer shards solve SHARDS --force",
+            )
+        S = meta.samples_per_row
+        if tuple(self.file["q"].shape[:2]) != (meta.num_rows, S) or self.file["q"].shape[2] != meta.window:
+            raise ShardFormatError(f"teacher arrays {self.file['q'].shape} do not fit the shard "
+                                   f"({meta.num_rows} rows x {S} samples x {meta.window} frames)", path=self.path)  # fmt: skip
+        self.solved = self.file["solved"][()]
+        self.energy = self.file["energy"][()]
+        self.solver = json.loads(a["solver"])
+
+    def solution(self, row: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """(q (T, J), base_pos (T, 3), base_rotvec (T, 3)) of sample ``k`` of ``row``; None if unsolved."""
+        if not self.solved[row, k]:
+            return None
+        return self.file["q"][row, k], self.file["base_pos"][row, k], self.file["base_rotvec"][row, k]
+
+    def close(self) -> None:
+        self.file.close()
+
+
+def teacher_features(skel: Skeleton, q: np.ndarray, base_pos: np.ndarray, base_rotvec: np.ndarray, fps: float) -> np.ndarray:
+    """A stored solution → (T, J, 9) float32 features on ``skel`` (mimic joints applied, by FK).
+
+    ``q`` may be padded beyond the skeleton's nodes; ``skel`` is the sample's (possibly link-scaled)
+    target skeleton.
+    """
+    J = skel.num_nodes
+    st = skeleton_tensors(skel, torch.float64)
+    qt = torch.from_numpy(np.asarray(q[:, :J], np.float64))
+    rv = torch.from_numpy(np.asarray(base_rotvec, np.float64))
+    pos, _ = fk_skeleton(st, qt, torch.from_numpy(np.asarray(base_pos, np.float64)), base_rot=axis_angle_to_matrix(rv))
+    revolute = (st.axes.abs().sum(-1) > 0).to(qt.dtype)
+    q_eff = apply_mimic(qt, st.mimic_source, st.mimic_multiplier, st.mimic_offset) * revolute
+    q_eff[..., 0] = 0
+    return window_features(pos.float().numpy(), q_eff.float().numpy(), rv.float().numpy(), fps)

@@ -1,0 +1,146 @@
+"""``mer shards solve``: teacher targets in the shards, read back by ``ShardDataset`` and training."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import h5py
+import numpy as np
+import pytest
+import torch
+
+from mer_data.errors import MerError, ShardFormatError
+from mer_data.samples import collate
+from mer_data.shards import ShardDataset
+from mer_data.shards.teacher import teacher_path
+from mer_models.cli import main
+from mer_models.config import EnergyConfig
+from mer_models.inference import optimize_batch
+from mer_models.model import RetargetModel
+from mer_models.teacher import SolverConfig, solve_shards
+from mer_models.train import clean_samples
+
+from model_helpers import MICRO, micro_run
+
+GN = 4  # iterations: enough to test the plumbing quickly
+
+
+def _build(out):
+    assert main(["shards", "build", "--synthetic", "1", "--synthetic-seconds", "4", "--robots", "g1", "--targets", "g1", "h1",
+                 "--augment", "1", "--workers", "1", "--quiet", "--out", str(out)]) == 0  # fmt: skip
+    return out
+
+
+@pytest.fixture(scope="module")
+def solved(tmp_path_factory):
+    out = _build(tmp_path_factory.mktemp("teacher"))
+    assert main(["shards", "solve", str(out), "--gn-iters", str(GN), "--batch", "3", "--quiet", "--json"]) == 0
+    return out
+
+
+def test_solve_writes_one_complete_teacher_file_per_shard(solved):
+    shard = next(solved.glob("*.h5"))
+    path = teacher_path(shard)
+    assert path == solved / "teacher" / shard.name and path.is_file()
+    assert not list(path.parent.glob("*.partial"))
+    with h5py.File(path) as f:
+        assert f["solved"][()].all() and np.isfinite(f["energy"][()]).all()
+        assert json.loads(f.attrs["solver"])["gn_iters"] == GN and f.attrs["frames"] > 0
+    ds = ShardDataset(solved)  # the teacher/ subfolder is not mistaken for a shard
+    assert len(ds.files) == 1 and ds.has_teacher
+
+
+def test_teacher_sample_is_the_optimisers_solution(solved):
+    """What training reads equals solving the same samples again (FK at load, mimic applied)."""
+    ds = ShardDataset(solved)
+    idx = [i for i in range(len(ds)) if ds[i].provenance["target"] == "h1"][:3]  # variant 0 and augmented
+    samples = [ds[i] for i in idx]
+    assert all(s.teacher is not None for s in samples) and any(s.provenance["augmented"] for s in samples)
+    batch = collate(samples)
+    again = optimize_batch(EnergyConfig(), batch, gn_iters=GN)
+    from mer_models.kinematics import batch_features, graph_from_batch
+
+    feats = batch_features(graph_from_batch(batch, "tgt", "cpu"), again["q"], again["base_pos"], again["base_rot"])
+    torch.testing.assert_close(batch["teacher"], feats, atol=2e-4, rtol=0)
+    e = [s.provenance["teacher_energy"] for s in samples]
+    np.testing.assert_allclose(e, again["energy"].numpy(), rtol=1e-3)
+
+
+def test_training_reads_x_from_the_teacher(solved):
+    ds = ShardDataset(solved)
+    batch = collate([ds[i] for i in range(4)])
+    m = RetargetModel(MICRO)
+    run = micro_run()
+    cond = m.conditions(batch)
+    x = clean_samples(m, batch, cond, run)
+    e = m.energy(x, cond, run.energy)
+    assert float(e["cst"].max()) < 1e-8  # FK-consistent features
+    # the energy of x is the teacher's own residual (a rigid change of frame moves goals and x alike)
+    teacher_energy = [p["teacher_energy"] for p in batch["provenance"]]
+    np.testing.assert_allclose(e["total"].numpy(), teacher_energy, rtol=2e-3)
+    ds_none = ShardDataset(solved, teacher=None)
+    b2 = collate([ds_none[i] for i in range(4)])
+    assert not b2["has_teacher"].any()
+
+
+def test_a_killed_solve_resumes_and_gives_the_same_file(solved, tmp_path, monkeypatch):
+    out = tmp_path / "s"
+    shutil.copytree(solved, out, ignore=shutil.ignore_patterns("teacher"))
+    import mer_models.teacher as teacher
+
+    calls = {"n": 0}
+    real = teacher.optimize_batch
+
+    def dies_on_second(*a, **k):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(teacher, "optimize_batch", dies_on_second)
+    with pytest.raises(KeyboardInterrupt):
+        solve_shards(out, solver=SolverConfig(gn_iters=GN, batch=3))
+    shard = next(out.glob("*.h5"))
+    final = teacher_path(shard)
+    partial = final.with_name(final.name + ".partial")
+    assert not final.exists() and partial.exists()  # nothing under the final name until complete
+    with h5py.File(partial) as f:
+        assert 0 < f["solved"][()].sum() < f["solved"].size
+    monkeypatch.setattr(teacher, "optimize_batch", real)
+    rec = solve_shards(out, solver=SolverConfig(gn_iters=GN, batch=3))
+    assert rec[0]["status"] == "solved" and final.exists() and not partial.exists()
+    with h5py.File(final) as a, h5py.File(teacher_path(next(solved.glob("*.h5")))) as b:
+        for k in ("q", "base_pos", "base_rotvec", "energy"):
+            np.testing.assert_allclose(a[k][()], b[k][()], atol=1e-5, err_msg=k)
+    assert solve_shards(out, solver=SolverConfig(gn_iters=GN, batch=3))[0]["status"] == "up to date"
+
+
+def test_another_configuration_is_refused_without_force(solved, tmp_path):
+    out = tmp_path / "s"
+    shutil.copytree(solved, out)
+    with pytest.raises(MerError, match="--force"):
+        solve_shards(out, solver=SolverConfig(gn_iters=GN + 1))
+    assert main(["shards", "solve", str(out), "--gn-iters", str(GN + 1)]) == 1
+
+
+def test_a_teacher_of_another_build_is_refused_on_load(solved, tmp_path):
+    out = tmp_path / "s"
+    shutil.copytree(solved, out)
+    path = teacher_path(next(out.glob("*.h5")))
+    with h5py.File(path, "r+") as f:
+        f.attrs["shard_build_id"] = "other"
+    with pytest.raises(ShardFormatError, match="another build"):
+        ShardDataset(out)
+    with pytest.raises(ShardFormatError, match="no teacher file"):
+        ShardDataset(out, teacher=tmp_path / "nowhere")
+
+
+def test_sharded_solve_covers_each_file_once(tmp_path):
+    out = tmp_path / "two"
+    assert main(["shards", "build", "--synthetic", "1", "--synthetic-seconds", "2.5", "--robots", "g1", "h1", "--targets", "g1",
+                 "--augment", "0", "--workers", "1", "--quiet", "--out", str(out)]) == 0  # fmt: skip
+    a = solve_shards(out, solver=SolverConfig(gn_iters=2), shard_index=0, num_shards=2)
+    b = solve_shards(out, solver=SolverConfig(gn_iters=2), shard_index=1, num_shards=2)
+    assert len(a) == len(b) == 1 and a[0]["shard"] != b[0]["shard"]
+    assert ShardDataset(out).has_teacher

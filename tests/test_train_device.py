@@ -1,0 +1,35 @@
+"""tools/train_device.sh: the accelerator's one prepared command, dry-run on CPU (2 training steps)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.skipif(shutil.which("bash") is None, reason="needs bash")
+def test_dry_run_writes_weights_log_and_teacher(tmp_path):
+    out, work = tmp_path / "out", tmp_path / "work"
+    env = {**os.environ, "OUT": str(out), "WORK": str(work), "PYTHON": sys.executable, "OMP_NUM_THREADS": "1"}
+    r = subprocess.run(["bash", str(REPO / "tools" / "train_device.sh"), "--dry-run"], env=env, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, (r.stdout + r.stderr)[-3000:]
+    for name in ("config.json", "model.safetensors", "train_log.jsonl", "learning_curve.jsonl", "teacher.json", "log.txt"):
+        assert (out / name).is_file(), name
+    cfg = json.loads((out / "config.json").read_text())
+    assert cfg["step"] == 2 and cfg["run"]["name"] == "base"
+    teacher = json.loads((out / "teacher.json").read_text())
+    assert len(teacher) == 2 and all(t["status"] == "solved" and t["frames_per_s"] > 0 for t in teacher)
+    assert cfg["data"]["teacher"] is True
+
+
+def test_unknown_option_is_refused(tmp_path):
+    r = subprocess.run(["bash", str(REPO / "tools" / "train_device.sh"), "--bogus"], env={**os.environ, "OUT": str(tmp_path)},
+                       capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert r.returncode == 2 and "unknown option --bogus" in r.stderr

@@ -1,0 +1,120 @@
+"""Learning curve: train in chunks and evaluate the held-out error after each, against CPU time.
+
+    PYTHONPATH=$PWD python tools/learning_curve.py --config base --shards SHARDS --out runs/base \\
+        --eval-input ../shared/data/lafan1 --chunk-steps 200 --max-minutes 60 [--bf16]
+
+Training is the ordinary trainer (:func:`mer_models.train.train`), resumed exactly after every
+chunk, so the weights equal those of one uninterrupted run; killed, the same command continues.
+After every chunk the checkpoint is evaluated with ``mer evaluate``'s library function, the model
+alone, on ``--eval-windows`` windows of the ``--eval-source`` robot's clips (the shipped weights
+never see LAFAN1, so every LAFAN1 clip is held out), and one JSON line is appended to
+``OUT/learning_curve.jsonl``: step, wall and CPU minutes of training so far (``process_time``:
+all threads of this process), the training loss, and g-mpbpe per target.
+
+``--configs A B C --minutes-each M`` compares configurations for the same CPU budget each (the
+issue's "which configuration learns fastest per CPU-minute"), one folder per configuration.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+log = logging.getLogger("learning_curve")
+
+
+def _curve(path: Path) -> list[dict]:
+    return [json.loads(x) for x in path.read_text().splitlines()] if path.is_file() else []
+
+
+def held_out(ckpt_dir: Path, eval_input: str, source: str, targets: list[str], windows: int, steps: int | None) -> dict:
+    """Mean g-mpbpe [m] (and limit violations) per target of the model alone on held-out windows."""
+    from mer_models.checkpoint import load_checkpoint
+    from mer_models.evaluate import EvalOptions, evaluate
+
+    opts = EvalOptions(split="all", max_windows=windows, methods=("model",), steps=steps, batch_size=16)
+    rep = evaluate(eval_input, source, targets, checkpoint=load_checkpoint(ckpt_dir), opts=opts)
+    out = {}
+    for r in rep["rows"]:
+        m = r["metrics"]
+        out[r["robot"]] = {"g_mpbpe": m["g_mpbpe"]["mean"], "limit_violation": m["limit_violation"]["mean"],
+                           "jerk_frame": m["jerk_frame"]["mean"]}  # fmt: skip
+    return out
+
+
+def run_curve(cfg_name: str, args, out: Path, minutes: float) -> list[dict]:
+    import torch
+
+    from mer_data.shards import ShardDataset
+    from mer_models.config import preset
+    from mer_models.train import train
+
+    run = preset(cfg_name)
+    if args.batch_size:
+        run = run.replace(train=dataclasses.replace(run.train, batch_size=args.batch_size))
+    run = run.replace(train=dataclasses.replace(run.train, save_every=args.chunk_steps, log_every=min(10, args.chunk_steps)))
+    ds = ShardDataset(args.shards, teacher=True)
+    curve_path = out / "learning_curve.jsonl"
+    curve = _curve(curve_path)
+    cpu = curve[-1]["cpu_min"] if curve else 0.0
+    wall = curve[-1]["wall_min"] if curve else 0.0
+    step = curve[-1]["step"] if curve else 0
+    info = {"shards": [str(p) for p in ds.paths], "samples": len(ds), "teacher": True}
+    while (wall if args.clock == "wall" else cpu) < minutes or step == 0:
+        c0, w0 = time.process_time(), time.time()
+        res = train(run, ds, out, steps=step + args.chunk_steps, resume=(out / "config.json").is_file(), bf16=args.bf16,
+                    data_info=info, device=args.device)  # fmt: skip
+        cpu += (time.process_time() - c0) / 60
+        wall += (time.time() - w0) / 60
+        step = res.step
+        rec = {"config": cfg_name, "step": step, "cpu_min": round(cpu, 2), "wall_min": round(wall, 2),
+               "threads": torch.get_num_threads(), "loss": res.last.get("loss"), "edm": res.last.get("edm"),
+               "f_kp": res.last.get("f_kp")}  # fmt: skip
+        if args.eval_input:
+            rec["held_out"] = held_out(out, args.eval_input, args.eval_source, args.eval_targets, args.eval_windows, args.eval_steps)
+            rec["g_mpbpe_mean"] = sum(v["g_mpbpe"] for v in rec["held_out"].values()) / len(rec["held_out"])
+        with open(curve_path, "a") as fh:
+            fh.write(json.dumps(rec) + "\n")
+        print(json.dumps(rec), flush=True)
+    return _curve(curve_path)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--config", default="base", help="preset to train (default base)")
+    ap.add_argument("--configs", nargs="+", help="compare these presets, --minutes-each CPU minutes each (OUT/<preset>)")
+    ap.add_argument("--shards", nargs="+", required=True, help="shards with teacher files (mer shards solve)")
+    ap.add_argument("--out", required=True, help="checkpoint folder (with --configs: parent folder)")
+    ap.add_argument("--chunk-steps", type=int, default=200, help="steps between evaluations (default 200)")
+    ap.add_argument("--max-minutes", type=float, default=60.0, help="CPU minutes of training in all (default 60)")
+    ap.add_argument("--minutes-each", type=float, default=10.0, help="with --configs: CPU minutes per configuration")
+    ap.add_argument("--batch-size", type=int, help="override the preset's batch size")
+    ap.add_argument("--bf16", action="store_true", help="bfloat16 autocast (AMX on CPU)")
+    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--clock", choices=["cpu", "wall"], default="cpu",
+                    help="what --max-minutes/--minutes-each count: CPU time of this process (default) or wall time (accelerators)")
+    ap.add_argument("--eval-input", help="LAFAN1-layout folder (e.g. ../shared/data/lafan1); omitted: no evaluation")
+    ap.add_argument("--eval-source", default="g1")
+    ap.add_argument("--eval-targets", nargs="+", default=["g1", "h1", "atlas"])
+    ap.add_argument("--eval-windows", type=int, default=16)
+    ap.add_argument("--eval-steps", type=int, default=None, help="sampler steps (default: the model's)")
+    args = ap.parse_args()
+    logging.basicConfig(level=logging.WARNING)
+    if args.configs:
+        for name in args.configs:
+            run_curve(name, args, Path(args.out) / name, args.minutes_each)
+    else:
+        run_curve(args.config, args, Path(args.out), args.max_minutes)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
