@@ -20,13 +20,13 @@ joint order) and ``body_names`` (L,): the URDF links of the base and of every jo
 
 **MCAP**: JSON channels ``/tf`` (``foxglove.FrameTransforms``, one message per frame) and
 ``/skeleton`` (``foxglove.SceneUpdate``), plus ``/reference`` (``foxglove.SceneUpdate`` spheres at
-the scaled reference key points) when given. Foxglove's 3D panel shows them as they are.
+the scaled reference key points) when given. The schemas embedded are Foxglove's official JSON
+schemas (:mod:`mer_data.shards.foxglove`), so Foxglove's and Lichtblick's 3D panels draw them.
 """
 
 from __future__ import annotations
 
 import io
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -191,7 +191,13 @@ def write_mcap(path: str | Path, motion: TargetMotion, *, reference_points: np.n
     """
     from mcap.writer import Writer
 
-    from mer_data.shards.foxglove import FRAME_TRANSFORMS_SCHEMA, SCENE_UPDATE_SCHEMA, frame_transforms, scene_update
+    from mer_data.shards.foxglove import (
+        FRAME_TRANSFORMS_SCHEMA,
+        SCENE_UPDATE_SCHEMA,
+        frame_transforms,
+        scene_update,
+        sphere_scene,
+    )
 
     check_motion_finite(motion, path)
     if reference_points is not None:
@@ -213,17 +219,7 @@ def write_mcap(path: str | Path, motion: TargetMotion, *, reference_points: np.n
     if reference_points is not None:
         rc = w.register_channel("/reference", "json", sc_schema)
         for seq, (ns, _) in enumerate(frames):
-            pts = reference_points[seq]
-            spheres = [
-                {"pose": {"position": {"x": float(p[0]), "y": float(p[1]), "z": float(p[2])},
-                          "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}},
-                 "size": {"x": 0.04, "y": 0.04, "z": 0.04}, "color": {"r": 1.0, "g": 0.1, "b": 0.1, "a": 0.8}}
-                for p in pts
-            ]  # fmt: skip
-            msg = {"deletions": [], "entities": [{
-                "timestamp": {"sec": int(ns // 10**9), "nsec": int(ns % 10**9)}, "frame_id": "world", "id": "reference",
-                "lifetime": {"sec": 0, "nsec": 0}, "frame_locked": False, "metadata": [], "arrows": [], "cubes": [],
-                "spheres": spheres, "cylinders": [], "lines": [], "triangles": [], "texts": [], "models": []}]}  # fmt: skip
-            w.add_message(rc, log_time=ns, publish_time=ns, data=json.dumps(msg, separators=(",", ":")).encode(), sequence=seq)
+            msg = sphere_scene(reference_points[seq], ns, entity_id="reference")
+            w.add_message(rc, log_time=ns, publish_time=ns, data=msg, sequence=seq)
     w.finish()
     return atomic_write(path, buf.getvalue())
