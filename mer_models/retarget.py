@@ -37,7 +37,16 @@ from .kinematics import graph_from_batch
 from .long_horizon import prepare_reference, retarget_sequence
 from .ik import DEFAULT_SMOOTH
 from .optimize import DEFAULT_GN_ITERS, DEFAULT_ITERS, optimize_motion
-from .writers import NPZ_FPS, TargetMotion, check_motion_finite, write_csv, write_mcap, write_npz
+from .writers import (
+    NPZ_FPS,
+    NPZ_ORDERS,
+    TargetMotion,
+    check_motion_finite,
+    isaaclab_order,
+    write_csv,
+    write_mcap,
+    write_npz,
+)
 
 log = logging.getLogger(__name__)
 
@@ -185,6 +194,7 @@ def retarget_file(
     input_fps: float = MODEL_FPS,
     device: str = "cpu",
     npz_fps: float | None = NPZ_FPS,
+    npz_order: str = "mjlab",
     **kw,
 ) -> RetargetResult:
     """Read a LAFAN1-layout CSV of ``source``, retarget it to ``target`` and write the outputs.
@@ -197,6 +207,10 @@ def retarget_file(
 
     load_robot(source)
     tgt_robot = load_robot(target)
+    if npz is not None and npz_order != "mjlab":  # refuse an order that cannot be written before the work
+        if npz_order not in NPZ_ORDERS:
+            raise MerError(f"unknown npz order {npz_order!r}", fix=f"use one of {', '.join(NPZ_ORDERS)}")
+        isaaclab_order(tgt_robot.skeleton)
     checkpoint = resolve_model(model, device) if (model is not None and method == "diffusion") else None
     if method == "diffusion" and checkpoint is None:
         raise MerError("the diffusion method needs a model", fix="pass --model PATH, or use --method optimize")
@@ -210,7 +224,7 @@ def retarget_file(
     if out_csv is not None:
         res.outputs["csv"] = write_csv(out_csv, res.motion)
     if npz is not None:
-        res.outputs["npz"] = write_npz(npz, res.motion, fps=npz_fps)
+        res.outputs["npz"] = write_npz(npz, res.motion, fps=npz_fps, order=npz_order)
     if mcap is not None:
         res.outputs["mcap"] = write_mcap(mcap, res.motion, reference_points=res.reference_points)
     if plot is not None:

@@ -17,16 +17,20 @@ orientation by slerp; ``fps=None`` keeps the motion's rate): ``fps``, ``joint_po
 (F, D), ``joint_vel`` (F, D), ``body_pos_w`` (F, L, 3), ``body_quat_w`` (F, L, 4, **wxyz**),
 ``body_lin_vel_w``, ``body_ang_vel_w`` (F, L, 3, world frame), plus ``joint_names`` (D,) (the CSV's
 joint order) and ``body_names`` (L,): the URDF links of the base and of every joint node.
+``order="mjlab"`` (default) keeps the CSV's joint order and mer's skeleton (URDF, depth-first) body
+order, which for G1 is MuJoCo's / mjlab's; ``order="isaaclab"`` writes joints and bodies in Isaac
+Lab's articulation order (breadth-first), as BeyondMimic's npz has them, for the robots in
+:data:`ISAACLAB_VERIFIED` (:func:`isaaclab_order`).
 
 **MCAP**: JSON channels ``/tf`` (``foxglove.FrameTransforms``, one message per frame) and
 ``/skeleton`` (``foxglove.SceneUpdate``), plus ``/reference`` (``foxglove.SceneUpdate`` spheres at
-the scaled reference key points) when given. Foxglove's 3D panel shows them as they are.
+the scaled reference key points) when given. The schemas embedded are Foxglove's official JSON
+schemas (:mod:`mer_data.shards.foxglove`), so Foxglove's and Lichtblick's 3D panels draw them.
 """
 
 from __future__ import annotations
 
 import io
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -41,10 +45,27 @@ from mer_data.registry import load_robot
 from mer_data.rotations import matrix_to_axis_angle, matrix_to_quat, quat_slerp, quat_to_matrix
 from mer_data.skeleton import Skeleton
 
-__all__ = ["TargetMotion", "csv_columns", "check_motion_finite", "resample_motion", "write_csv", "write_npz", "write_mcap", "NPZ_FPS"]
+__all__ = [
+    "TargetMotion",
+    "csv_columns",
+    "check_motion_finite",
+    "resample_motion",
+    "write_csv",
+    "write_npz",
+    "write_mcap",
+    "isaaclab_order",
+    "NPZ_FPS",
+    "NPZ_ORDERS",
+    "ISAACLAB_VERIFIED",
+]
 
 #: Frame rate of npz outputs: the control rate of the mjlab / BeyondMimic trackers [Hz].
 NPZ_FPS = 50.0
+#: Joint/body layouts of npz outputs: mjlab (URDF order, MuJoCo's) or isaaclab (breadth-first, BeyondMimic's).
+NPZ_ORDERS = ("mjlab", "isaaclab")
+#: Robots whose breadth-first order :func:`isaaclab_order` has been checked against Isaac Lab's
+#: published articulation order (tests/test_npz_order.py); others are refused for ``isaaclab``.
+ISAACLAB_VERIFIED = frozenset({"g1"})
 
 
 @dataclass(frozen=True)
@@ -128,11 +149,41 @@ def _angular_velocity(rot: np.ndarray, fps: float) -> np.ndarray:
     return (w / dt[:, None, None]).numpy()
 
 
-def body_arrays(motion: TargetMotion) -> dict[str, np.ndarray]:
-    """Body (URDF link) poses and velocities of the base and every joint node."""
+def isaaclab_order(skel: Skeleton) -> tuple[tuple[str, ...], list[int]]:
+    """Isaac Lab's articulation order of ``skel``: (joint names, body node indices).
+
+    PhysX parses an articulation breadth-first: the root link, then its children, then theirs, each
+    link's children in the order the URDF declares them (the USD prim order); fixed-joint links are
+    merged into their parents (Isaac Lab's URDF importer default), as they are in mer's skeleton.
+    Joints follow their child links. Verified for the robots in :data:`ISAACLAB_VERIFIED`; raises
+    :class:`~mer_data.errors.OutputError` for any other robot (importer settings, locked joints and
+    prim order can differ, so the order is not guaranteed there).
+    """
+    from mer_data.errors import OutputError
+
+    if skel.name not in ISAACLAB_VERIFIED:
+        raise OutputError(
+            f"the Isaac Lab joint/body order is verified only for {', '.join(sorted(ISAACLAB_VERIFIED))}, not for {skel.name!r}",
+            element="npz order 'isaaclab'",
+            fix="write the default mjlab order (--npz-order mjlab) and reorder by the npz's joint_names/body_names "
+            "to your articulation's robot.joint_names/body_names, or convert mer's CSV with the tracker's csv_to_npz (docs/trackers.md)",
+        )
+    order, queue = [], [0]
+    while queue:
+        j = queue.pop(0)
+        order.append(j)
+        queue += [c for c in skel.children(j) if skel.node_kinds[c] != "site"]
+    return tuple(skel.node_names[j] for j in order[1:]), order
+
+
+def body_arrays(motion: TargetMotion, links: list[int] | None = None) -> dict[str, np.ndarray]:
+    """Body (URDF link) poses and velocities of the nodes ``links`` (default: the base and every
+    joint node, in node order): names (L,), positions (F, L, 3) [m], quaternions (F, L, 4) wxyz,
+    linear (F, L, 3) [m/s] and angular (F, L, 3) [rad/s] velocities, world frame."""
     skel = motion.skeleton
     pos, rot = motion.forward_kinematics()
-    links = [j for j in range(skel.num_nodes) if skel.node_kinds[j] != "site"]
+    if links is None:
+        links = [j for j in range(skel.num_nodes) if skel.node_kinds[j] != "site"]
     lrot = link_rotations(torch.from_numpy(rot), torch.from_numpy(np.array(skel.rest_rotations))).numpy()[:, links]
     bpos = pos[:, links]
     return {
@@ -163,12 +214,21 @@ def resample_motion(motion: TargetMotion, fps: float) -> TargetMotion:
     return TargetMotion(motion.skeleton, float(fps), q, base_pos, rot)
 
 
-def write_npz(path: str | Path, motion: TargetMotion, *, fps: float | None = NPZ_FPS) -> Path:
-    """The mjlab / BeyondMimic npz at ``fps`` (see module docstring)."""
+def write_npz(path: str | Path, motion: TargetMotion, *, fps: float | None = NPZ_FPS, order: str = "mjlab") -> Path:
+    """The mjlab / BeyondMimic npz at ``fps`` [Hz], joints and bodies in ``order`` (one of
+    :data:`NPZ_ORDERS`; see module docstring)."""
+    from mer_data.errors import OutputError
+
+    if order not in NPZ_ORDERS:
+        raise OutputError(f"unknown npz order {order!r}", path=path, fix=f"use one of {', '.join(NPZ_ORDERS)}")
     check_motion_finite(motion, path)
+    links = None
+    if order == "isaaclab":
+        cols, links = isaaclab_order(motion.skeleton)
+    else:
+        cols = csv_columns(motion.skeleton)
     if fps is not None:
         motion = resample_motion(motion, fps)
-    cols = csv_columns(motion.skeleton)
     jp = _joint_matrix(motion, cols)
     arrays = {
         "fps": np.array(motion.fps),
@@ -176,7 +236,7 @@ def write_npz(path: str | Path, motion: TargetMotion, *, fps: float | None = NPZ
         "joint_vel": finite_difference(torch.from_numpy(jp), motion.fps, dim=0).numpy().astype(np.float32),
         "joint_names": np.array(cols),
     }
-    for k, v in body_arrays(motion).items():
+    for k, v in body_arrays(motion, links).items():
         arrays[k] = v if k == "body_names" else v.astype(np.float32)
     require_finite(arrays, path=path, what="npz motion")
     buf = io.BytesIO()
@@ -191,7 +251,13 @@ def write_mcap(path: str | Path, motion: TargetMotion, *, reference_points: np.n
     """
     from mcap.writer import Writer
 
-    from mer_data.shards.foxglove import FRAME_TRANSFORMS_SCHEMA, SCENE_UPDATE_SCHEMA, frame_transforms, scene_update
+    from mer_data.shards.foxglove import (
+        FRAME_TRANSFORMS_SCHEMA,
+        SCENE_UPDATE_SCHEMA,
+        frame_transforms,
+        scene_update,
+        sphere_scene,
+    )
 
     check_motion_finite(motion, path)
     if reference_points is not None:
@@ -213,17 +279,7 @@ def write_mcap(path: str | Path, motion: TargetMotion, *, reference_points: np.n
     if reference_points is not None:
         rc = w.register_channel("/reference", "json", sc_schema)
         for seq, (ns, _) in enumerate(frames):
-            pts = reference_points[seq]
-            spheres = [
-                {"pose": {"position": {"x": float(p[0]), "y": float(p[1]), "z": float(p[2])},
-                          "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}},
-                 "size": {"x": 0.04, "y": 0.04, "z": 0.04}, "color": {"r": 1.0, "g": 0.1, "b": 0.1, "a": 0.8}}
-                for p in pts
-            ]  # fmt: skip
-            msg = {"deletions": [], "entities": [{
-                "timestamp": {"sec": int(ns // 10**9), "nsec": int(ns % 10**9)}, "frame_id": "world", "id": "reference",
-                "lifetime": {"sec": 0, "nsec": 0}, "frame_locked": False, "metadata": [], "arrows": [], "cubes": [],
-                "spheres": spheres, "cylinders": [], "lines": [], "triangles": [], "texts": [], "models": []}]}  # fmt: skip
-            w.add_message(rc, log_time=ns, publish_time=ns, data=json.dumps(msg, separators=(",", ":")).encode(), sequence=seq)
+            msg = sphere_scene(reference_points[seq], ns, entity_id="reference")
+            w.add_message(rc, log_time=ns, publish_time=ns, data=msg, sequence=seq)
     w.finish()
     return atomic_write(path, buf.getvalue())

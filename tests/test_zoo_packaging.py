@@ -38,6 +38,8 @@ def test_the_wheel_ships_every_card_and_the_template(wheel):
     for card in (REPO / "cards" / "models").glob("*.md"):
         assert f"mer_models/cards/{card.name}" in names
     assert "mer_models/templates/model_card.md" in names
+    for f in ("FrameTransforms.json", "SceneUpdate.json", "LICENSE"):  # Foxglove's official schemas (MCAP writers)
+        assert f"mer_data/shards/foxglove_schemas/{f}" in names
     for folder in (REPO / "mer_models" / "bundled").glob("*/"):
         for f in folder.iterdir():
             assert f"mer_models/bundled/{folder.name}/{f.name}" in names

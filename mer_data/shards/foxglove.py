@@ -7,53 +7,43 @@
 * ``foxglove.SceneUpdate``: one frame-locked entity per node drawing the links to its children
   (a line list in the node's frame) and a sphere at the joint; key points are drawn larger.
 
-Foxglove recognises the messages by their schema names; the JSON schemas below are the subset of
-the official ones that these messages use.
+Foxglove recognises the messages by their schema names and parses them with the schema text
+embedded in the MCAP: that text is Foxglove's official JSON schema of each message, vendored
+unchanged in ``foxglove_schemas/`` (MIT, from foxglove/foxglove-sdk; see its README). Every
+message written here carries every field those schemas require.
 """
 
 from __future__ import annotations
 
 import json
+from importlib.resources import files
 
 import numpy as np
 
 from ..skeleton import Skeleton
 
-__all__ = ["FRAME_TRANSFORMS_SCHEMA", "SCENE_UPDATE_SCHEMA", "frame_transforms", "scene_update", "rotvec_to_xyzw"]
+__all__ = [
+    "FRAME_TRANSFORMS_SCHEMA",
+    "SCENE_UPDATE_SCHEMA",
+    "frame_transforms",
+    "scene_update",
+    "sphere_scene",
+    "rotvec_to_xyzw",
+]
 
 
-def _schema(title: str, props: dict) -> bytes:
-    return json.dumps({"title": title, "type": "object", "properties": props}).encode()
+def _official_schema(name: str) -> bytes:
+    """The vendored official JSON schema of ``foxglove.<name>`` (UTF-8 bytes, unchanged)."""
+    return (files(__package__) / "foxglove_schemas" / f"{name}.json").read_bytes()
 
 
-_TIME = {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}}
-_VEC = {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}}
-_QUAT = {"type": "object", "properties": {k: {"type": "number"} for k in "xyzw"}}
-FRAME_TRANSFORMS_SCHEMA = _schema(
-    "foxglove.FrameTransforms",
-    {
-        "transforms": {
-            "type": "array",
-            "items": {
-                "type": "object",
-                "properties": {
-                    "timestamp": _TIME,
-                    "parent_frame_id": {"type": "string"},
-                    "child_frame_id": {"type": "string"},
-                    "translation": _VEC,
-                    "rotation": _QUAT,
-                },
-            },
-        }
-    },
-)
-SCENE_UPDATE_SCHEMA = _schema(
-    "foxglove.SceneUpdate",
-    {"deletions": {"type": "array"}, "entities": {"type": "array", "items": {"type": "object"}}},
-)
+#: Foxglove's official JSON schema texts, embedded as the MCAP schema records.
+FRAME_TRANSFORMS_SCHEMA = _official_schema("FrameTransforms")
+SCENE_UPDATE_SCHEMA = _official_schema("SceneUpdate")
 
 
 def _time(ns: int) -> dict:
+    """Foxglove ``time`` of ``ns`` [ns since the log start]."""
     return {"sec": int(ns // 1_000_000_000), "nsec": int(ns % 1_000_000_000)}
 
 
@@ -125,3 +115,24 @@ def scene_update(skel: Skeleton, prefix: str, ns: int) -> bytes:
              "cylinders": [], "lines": lines, "triangles": [], "texts": [], "models": []}
         )  # fmt: skip
     return json.dumps({"deletions": [], "entities": entities}, separators=(",", ":")).encode()
+
+
+def sphere_scene(
+    points: np.ndarray,
+    ns: int,
+    *,
+    entity_id: str,
+    frame_id: str = "world",
+    size: float = 0.04,
+    rgba: tuple[float, float, float, float] = (1.0, 0.1, 0.1, 0.8),
+) -> bytes:
+    """A SceneUpdate with one entity ``entity_id`` of spheres (diameter ``size`` [m]) at ``points`` (K, 3) [m]
+    in ``frame_id``, stamped ``ns``; it replaces the previous message's entity of the same id."""
+    ident = {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}
+    color = dict(zip("rgba", map(float, rgba)))
+    spheres = [{"pose": {"position": _vec(p), "orientation": ident}, "size": {"x": size, "y": size, "z": size}, "color": color}
+               for p in np.asarray(points, np.float64)]  # fmt: skip
+    entity = {"timestamp": _time(ns), "frame_id": frame_id, "id": entity_id, "lifetime": {"sec": 0, "nsec": 0},
+              "frame_locked": False, "metadata": [], "arrows": [], "cubes": [], "spheres": spheres, "cylinders": [],
+              "lines": [], "triangles": [], "texts": [], "models": []}  # fmt: skip
+    return json.dumps({"deletions": [], "entities": [entity]}, separators=(",", ":")).encode()

@@ -1,11 +1,12 @@
 """MCAP shards: the same content as HDF5, viewable in Foxglove.
 
-* ``/mer/windows`` (schema ``mer.ShardWindow``, JSON): one message per window (row) with every
-  column; numeric arrays are ``{"dtype", "shape", "base64"}`` of their exact little-endian bytes,
-  so reading back is lossless.
+* ``/mer/windows`` (schema ``mer.ShardWindow``, JSON, every field typed): one message per window
+  (row) with every column; numeric arrays are ``{"dtype", "shape", "base64"}`` of their exact
+  little-endian bytes, so reading back is lossless.
 * ``/tf`` (``foxglove.FrameTransforms``) and ``/skeleton`` (``foxglove.SceneUpdate``): an animation
   of the first ``preview`` windows of every clip (all windows with ``preview < 0``), laid one after
-  another on the timeline, for Foxglove's 3D panel.
+  another on the timeline, for Foxglove's 3D panel; their schemas are Foxglove's official ones
+  (:mod:`.foxglove`).
 * metadata record ``mer.shard``: :meth:`ShardMeta.to_attrs`, every value a string.
 
 Chunks are zstd-compressed. Reading loads the file's windows into memory (use HDF5 for large-scale
@@ -26,20 +27,46 @@ from mcap.writer import CompressionType, Writer
 from ..errors import ShardFormatError
 from ..skeleton import Skeleton
 from .foxglove import FRAME_TRANSFORMS_SCHEMA, SCENE_UPDATE_SCHEMA, frame_transforms, scene_update
-from .schema import COLUMNS, ShardMeta
+from .schema import COLUMNS, ShardMeta, column_shapes
 
 __all__ = ["McapShardWriter", "McapShard", "WINDOW_TOPIC", "TF_TOPIC", "SCENE_TOPIC"]
 
 WINDOW_TOPIC, TF_TOPIC, SCENE_TOPIC = "/mer/windows", "/tf", "/skeleton"
 _META_NAME = "mer.shard"
-_WINDOW_SCHEMA = json.dumps(
-    {
+
+
+def _window_schema() -> bytes:
+    """JSON schema of a ``/mer/windows`` message, fully typed so that viewers parse it: ``row``,
+    the string columns, and per array column ``{dtype (const), shape (rank fixed), base64}``."""
+    rank = {c: len(s) for c, s in column_shapes(1, 1, 1, 1).items()}
+    props: dict[str, dict] = {"row": {"type": "integer", "minimum": 0, "description": "row (window) index in the shard"}}
+    for c, dtype in COLUMNS.items():
+        if dtype == "str":
+            props[c] = {"type": "string"}
+            continue
+        props[c] = {
+            "type": "object",
+            "description": f"numpy array, dtype {dtype}, rank {rank[c]}: the C-order bytes, base64",
+            "properties": {
+                "dtype": {"type": "string", "const": dtype},
+                "shape": {"type": "array", "items": {"type": "integer", "minimum": 0}, "minItems": rank[c], "maxItems": rank[c]},
+                "base64": {"type": "string", "contentEncoding": "base64"},
+            },
+            "required": ["dtype", "shape", "base64"],
+            "additionalProperties": False,
+        }
+    schema = {
         "title": "mer.ShardWindow",
-        "description": "One window of a mer training shard; arrays are base64 little-endian bytes.",
+        "description": "One window of a mer training shard (mer_data.shards.schema); arrays are base64 little-endian bytes.",
         "type": "object",
-        "properties": {"row": {"type": "integer"}, **{c: {} for c in COLUMNS}},
+        "properties": props,
+        "required": list(props),
+        "additionalProperties": False,
     }
-).encode()
+    return json.dumps(schema).encode()
+
+
+_WINDOW_SCHEMA = _window_schema()
 
 
 def _enc(a: np.ndarray) -> dict:

@@ -32,6 +32,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--npz", help="also write an npz in the mjlab / BeyondMimic layout (docs/trackers.md)")
     p.add_argument("--npz-fps", type=float, default=50.0, help="frame rate of npz outputs [Hz] (default 50, the trackers' rate; "
                    "resampled like csv_to_npz: lerp + slerp)")
+    p.add_argument("--npz-order", choices=["mjlab", "isaaclab"], default="mjlab",
+                   help="joint/body order of the npz: mjlab (default; URDF order, as MuJoCo/mjlab) or isaaclab "
+                   "(breadth-first, as Isaac Lab/BeyondMimic; verified robots only: g1) (docs/trackers.md)")
     p.add_argument("--mcap", help="also write a Foxglove MCAP")
     p.add_argument("--plot", help="also write a PNG of stick figures over time")
     p.add_argument("--model", help="checkpoint folder, zoo name or ORG/NAME for --method diffusion "
@@ -74,7 +77,7 @@ def cmd_retarget(args) -> int:
         print(f"no --model: using the bundled demo model {model!r} (synthetic training, not for real use)", file=sys.stderr)
     res = retarget_file(
         args.input, args.source, args.target, out_csv=args.output, npz=args.npz, mcap=args.mcap, plot=args.plot,
-        model=model, method=args.method, input_fps=args.fps, device=args.device, npz_fps=args.npz_fps, **kw,
+        model=model, method=args.method, input_fps=args.fps, device=args.device, npz_fps=args.npz_fps, npz_order=args.npz_order, **kw,
     )  # fmt: skip
     m = res.motion
     print(f"{args.source} -> {args.target} ({res.method}): {m.num_frames} frames at {m.fps:g} Hz", file=sys.stderr)
@@ -96,6 +99,9 @@ def _dataset(args) -> int:
             + (f"; missing: {', '.join(missing)}" if missing else ""),
             fix="e.g. mer retarget --input lafan1/ --source g1 --targets h1 atlas --out retargeted/",
         )
+    if args.npz_order != "mjlab":
+        raise MerError(f"--npz-order {args.npz_order} is for single-file runs; dataset runs write the mjlab order",
+                       fix="drop --npz-order, or retarget the clips one by one (mer retarget CLIP.csv --npz OUT.npz --npz-order isaaclab)")
     method = args.method or "optimize"
     checkpoint, kw = None, {}
     if method == "diffusion":
