@@ -28,6 +28,7 @@ __all__ = [
     "NUM_RELATIONS",
     "window_mask",
     "grpe_bias",
+    "attend",
     "SpatialAttention",
     "TemporalAttention",
     "MultiConditionCrossAttention",
@@ -40,6 +41,25 @@ def window_mask(T: int, window: int, device=None) -> torch.Tensor:
     """(T, T) bool, True where frame i may attend to frame j: ``|i - j| <= (window - 1) / 2``."""
     i = torch.arange(T, device=device)
     return (i[:, None] - i[None, :]).abs() <= (window - 1) // 2
+
+
+def attend(q: torch.Tensor, k: torch.Tensor, v: torch.Tensor, mask: torch.Tensor, dropout: float = 0.0) -> torch.Tensor:
+    """``softmax(q k^T / sqrt(d) + mask) v`` for (N, h, L, d) queries/keys/values; ``mask`` is an
+    additive float mask or a bool mask (True = may attend), broadcastable to (N, h, L, S).
+
+    On accelerators this is PyTorch's fused ``scaled_dot_product_attention``; on the CPU the same
+    arithmetic written out, which for these short sequences (L, S <= 60) is 3-7x faster than the
+    CPU's fused kernel in bfloat16 and as fast in float32 (measured on 2 cores with AMX,
+    docs/model.md).
+    """
+    if q.device.type != "cpu":
+        return F.scaled_dot_product_attention(q, k, v, attn_mask=mask, dropout_p=dropout)
+    s = (q @ k.transpose(-1, -2)) * (1.0 / math.sqrt(q.shape[-1]))
+    s = s.masked_fill(~mask, float("-inf")) if mask.dtype == torch.bool else s + mask.to(s.dtype)
+    a = s.softmax(-1)
+    if dropout > 0:
+        a = F.dropout(a, dropout)
+    return a @ v
 
 
 def grpe_bias(q: torch.Tensor, k: torch.Tensor, psi: torch.Tensor, e_q: torch.Tensor, e_k: torch.Tensor) -> torch.Tensor:
@@ -92,12 +112,12 @@ class SpatialAttention(nn.Module):
         q, k, v = self.qkv(x).view(B, T, J, 3, self.h, self.d).permute(3, 0, 1, 4, 2, 5)  # (B,T,h,J,d)
         bias = grpe_bias(q, k, psi[:, None], self.e_q, self.e_k) / math.sqrt(self.d)
         bias = bias.masked_fill(~node_mask[:, None, None, None, :], float("-inf"))
-        o = F.scaled_dot_product_attention(
+        o = attend(
             q.reshape(B * T, self.h, J, self.d),
             k.reshape(B * T, self.h, J, self.d),
             v.reshape(B * T, self.h, J, self.d),
-            attn_mask=bias.reshape(B * T, self.h, J, J),
-            dropout_p=self.attn_drop if self.training else 0.0,
+            bias.reshape(B * T, self.h, J, J),
+            self.attn_drop if self.training else 0.0,
         )
         o = o.view(B, T, self.h, J, self.d).permute(0, 1, 3, 2, 4).reshape(B, T, J, H)
         return self.res(x, self.out(o))
@@ -120,7 +140,7 @@ class TemporalAttention(nn.Module):
         qkv = self.qkv(x).view(B, T, J, 3, self.h, self.d).permute(3, 0, 2, 4, 1, 5)  # (3,B,J,h,T,d)
         q, k, v = (t.reshape(B * J, self.h, T, self.d) for t in qkv)
         mask = window_mask(T, self.window, x.device)
-        o = F.scaled_dot_product_attention(q, k, v, attn_mask=mask, dropout_p=self.attn_drop if self.training else 0.0)
+        o = attend(q, k, v, mask, self.attn_drop if self.training else 0.0)
         o = o.view(B, J, self.h, T, self.d).permute(0, 3, 1, 2, 4).reshape(B, T, J, H)
         return self.res(x, self.out(o))
 

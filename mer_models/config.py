@@ -9,8 +9,9 @@ Presets (:data:`PRESETS`):
 * ``paper``: the paper's configuration (H = 240, 4 layers per decoder, 6 heads, FFN 1024,
   batch 16, ``T_w`` = 31, 60-frame windows).
 * ``tiny``: the same architecture, small enough to train on 2 CPU cores in minutes (tests, demo).
-* ``small`` and ``base``: between the two, for training on a CPU in hours (``base``: ``mer-base``);
-  both sample with 4 Heun steps (7 network evaluations). docs/model.md compares them per CPU-minute.
+* ``base``: between the two, the configuration of ``mer-base``: trainable on a CPU in hours (on 2
+  cores a step's cost is set by the number of tokens, not by the width: H = 96 costs 1.3x ``tiny``
+  per sample for 6x the parameters, docs/model.md); samples with 4 Heun steps (7 network evaluations).
 """
 
 from __future__ import annotations
@@ -238,23 +239,17 @@ PRESETS: dict[str, RunConfig] = {
         model=ModelConfig(hidden=48, layers=2, heads=4, cross_heads_per_condition=1, ffn=96, dropout=0.0),
         train=TrainConfig(batch_size=8, lr=1e-3, warmup=100, opt_iters=6, save_every=100),
     ),
-    "small": RunConfig(
-        name="small",
-        model=ModelConfig(hidden=96, layers=2, heads=4, cross_heads_per_condition=1, ffn=256, dropout=0.0),
-        sampler=SamplerConfig(steps=4),
-        train=TrainConfig(batch_size=16, lr=5e-4, warmup=100, save_every=200),
-    ),
     "base": RunConfig(
         name="base",
-        model=ModelConfig(hidden=128, layers=3, heads=4, cross_heads_per_condition=1, ffn=384, dropout=0.0),
+        model=ModelConfig(hidden=96, layers=2, heads=4, cross_heads_per_condition=1, ffn=256, dropout=0.0),
         sampler=SamplerConfig(steps=4),
-        train=TrainConfig(batch_size=16, lr=3e-4, warmup=100, save_every=200),
+        train=TrainConfig(batch_size=16, lr=7e-4, warmup=100, save_every=200),
     ),
 }
 
 
 def preset(name: str) -> RunConfig:
-    """A preset by name (``tiny``, ``small``, ``base`` or ``paper``)."""
+    """A preset by name (``tiny``, ``base`` or ``paper``)."""
     try:
         return PRESETS[name]
     except KeyError:

@@ -17,7 +17,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         description="Train the model; the --out folder is the checkpoint (config.json + model.safetensors). "
         "Multi-GPU/CPU: run under `torchrun --nproc_per_node N -m mer_models train ...`.",
     )
-    p.add_argument("--config", default="tiny", help="preset: tiny (CPU, minutes) or paper (H=240, 4 layers)")
+    p.add_argument("--config", default="tiny", help="preset: tiny (CPU, minutes), base (mer-base: CPU, hours) or paper (H=240, 4 layers)")
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--shards", nargs="+", metavar="PATH", help="shard files or folders (mer shards build)")
     src.add_argument("--synthetic", type=int, metavar="N", help="train on N synthetic windows (no data needed)")
