@@ -219,32 +219,36 @@ def _write_mp4(path: Path, frames, size: tuple[int, int], fps: float) -> Path:
     os.close(fd)
     cmd = [exe, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{size[0]}x{size[1]}", "-r", f"{fps:.6g}",
            "-i", "-", "-an", "-c:v", "libx264", "-pix_fmt", "yuv420p", "-movflags", "+faststart", "-f", "mp4", tmp]  # fmt: skip
-    try:
-        proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stderr=subprocess.PIPE)
-        err = b""
+    proc = None
+    with tempfile.TemporaryFile() as log_file:  # ffmpeg's messages (a file, not a pipe: a pipe that fills up would block it)
         try:
-            for rgb in frames:
-                proc.stdin.write(rgb.tobytes())
-            proc.stdin.close()
-        except BrokenPipeError:
-            pass  # ffmpeg stopped early: its message follows
-        finally:
-            err = proc.stderr.read()
+            proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=log_file)
+            try:
+                for rgb in frames:
+                    proc.stdin.write(rgb.tobytes())
+            except BrokenPipeError:
+                pass  # ffmpeg stopped early: its exit status and message follow
+            finally:
+                try:
+                    proc.stdin.close()  # end of input (or, after an error, ffmpeg is killed below)
+                except BrokenPipeError:
+                    pass
             proc.wait()
-        if proc.returncode != 0:
-            tail = err.decode("utf-8", "replace").strip().splitlines()[-3:]
-            raise MerError(f"ffmpeg failed (exit {proc.returncode}): {' | '.join(tail) or 'no message'}", path=path,
-                           fix="check that this ffmpeg has the libx264 encoder (`ffmpeg -encoders`), or write a .gif")  # fmt: skip
-        with open(tmp, "rb") as fh:
-            os.fsync(fh.fileno())
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
-    except BaseException:
-        if "proc" in locals() and proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        Path(tmp).unlink(missing_ok=True)
-        raise
+            if proc.returncode != 0:
+                log_file.seek(0)
+                tail = log_file.read().decode("utf-8", "replace").strip().splitlines()[-3:]
+                raise MerError(f"ffmpeg failed (exit {proc.returncode}): {' | '.join(tail) or 'no message'}", path=path,
+                               fix="check that this ffmpeg has the libx264 encoder (`ffmpeg -encoders`), or write a .gif")  # fmt: skip
+            with open(tmp, "rb") as fh:
+                os.fsync(fh.fileno())
+            os.chmod(tmp, 0o666 & ~_umask())
+            os.replace(tmp, path)
+        except BaseException:
+            if proc is not None and proc.poll() is None:
+                proc.kill()  # a frame failed to render: stop ffmpeg, keep nothing
+                proc.wait()
+            Path(tmp).unlink(missing_ok=True)
+            raise
     return path
 
 
