@@ -12,6 +12,13 @@ wrong number of cells, a cell it cannot parse, a non-finite value) it hands over
 :func:`exact_parse`, a line-by-line scan in Python that either parses the file (unusual but valid
 spellings such as ``" 1.5"`` or ``"+2"``) or raises :class:`MotionFormatError` naming the file, the
 line, the column and the cell. That slow scan runs only for such files.
+
+Why not ``np.loadtxt(delimiter=",")`` (numpy 2.4.6, real LAFAN1 G1 clips, wall time best of 9, a
+loaded 2-core machine): it is 2.5-4x slower -- walk1_subject1 (2.7 MB, 7840 rows) 12 ms here vs
+46 ms, sprint1_subject2 (2.8 MB) 14 vs 56 ms, dance1_subject1 (1.3 MB) 11 vs 27 ms; 174 vs 57 MB/s
+of CPU time over 12 clips -- with bit-identical values, and it is less strict: it accepts
+``nan``, blank lines and ``#`` comments, its errors name no file, and it numbers rows
+inconsistently (a bad cell on the 2nd line is "row 1", a short 2nd line "row 2").
 """
 
 from __future__ import annotations

@@ -30,23 +30,16 @@ FEATURE_DIM = 9
 
 
 def finite_difference(x: torch.Tensor, fps: float, dim: int = -3) -> torch.Tensor:
-    """Time derivative along ``dim`` [unit/s], second order everywhere (needs >= 3 frames).
+    """Time derivative along ``dim`` [unit/s], second order everywhere: ``torch.gradient(edge_order=2)``.
 
-    Interior: ``(x[t+1] - x[t-1]) / 2h``; ends: ``(-3 x0 + 4 x1 - x2) / 2h`` and its mirror.
-    With 2 frames it falls back to the first-order difference.
+    Interior: ``(x[t+1] - x[t-1]) / 2h``; ends: ``(-3 x0 + 4 x1 - x2) / 2h`` and its mirror, as
+    ``numpy.gradient(..., edge_order=2)`` (tests/test_windows.py). ``torch.gradient`` needs 3 frames
+    for that; with 2 this is the first-order difference, with fewer zeros. Differentiable (autograd).
     """
-    h = 1.0 / fps
-    x = x.movedim(dim, 0)
-    T = x.shape[0]
+    T = x.shape[dim]
     if T < 2:
-        return torch.zeros_like(x).movedim(0, dim)
-    if T == 2:
-        d = (x[1] - x[0]) / h
-        return torch.stack([d, d]).movedim(0, dim)
-    inner = (x[2:] - x[:-2]) / (2 * h)
-    first = (-3 * x[0] + 4 * x[1] - x[2]) / (2 * h)
-    last = (3 * x[-1] - 4 * x[-2] + x[-3]) / (2 * h)
-    return torch.cat([first[None], inner, last[None]]).movedim(0, dim)
+        return torch.zeros_like(x)
+    return torch.gradient(x, spacing=1.0 / fps, dim=dim, edge_order=2 if T > 2 else 1)[0]
 
 
 def motion_features(

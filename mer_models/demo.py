@@ -9,7 +9,8 @@
    :mod:`mer_data.example_robot`), as ``mer robots register`` does;
 4. the default model loaded by name from the zoo (bundled with the package: no network);
 5. the synthetic G1 walk retargeted to every built-in robot and to the new one (zero-shot: the
-   model never saw it), written as CSVs, one MCAP and one PNG, with the paper's metrics per robot.
+   model never saw it), written as CSVs, one MCAP, one PNG and one GIF (the scaled reference and
+   the retarget side by side), with the paper's metrics per robot.
 
 ``docs/shards.md`` shows the same build on the real data; ``docs/zoo.md`` the models.
 """
@@ -36,7 +37,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", metavar="DIR", help="where to write the demo's files (default: a new temporary folder)")
     p.add_argument("--workers", type=int, default=1, help="worker processes for the shard build (default 1)")
     p.add_argument("--model", default=None, help="zoo name, folder or ORG/NAME (default: the bundled mer-tiny-synthetic)")
-    p.add_argument("--show", default="h1", help="the robot whose result is also written as MCAP and PNG (default h1)")
+    p.add_argument("--show", default="h1", help="the robot whose result is also written as MCAP, PNG and GIF (default h1)")
     p.add_argument("--steps", type=int, default=None, help="sampler steps (default: the model's)")
     p.set_defaults(func=cmd_demo)
 
@@ -145,3 +146,4 @@ def retarget_walk(args, out: Path, builtins: list[str]) -> None:
     for r in results:
         if r.robot == args.show:
             print(f"\nMCAP (Foxglove: /tf, /skeleton, /reference): {r.outputs['mcap']}\nPNG: {r.outputs['png']}")
+            print(f"GIF (scaled reference | retarget): {r.outputs['gif']}")

@@ -3,8 +3,8 @@
 :func:`register_example_robot` writes the example humanoid URDF (generated in code,
 :mod:`mer_data.example_robot`) and registers it in ``$MER_HOME`` exactly as
 ``mer robots register NAME --urdf FILE`` does. :func:`retarget_to_all` retargets one source
-motion with one model to every robot given, writes a CSV per robot (plus an MCAP and a PNG for
-one of them) and measures each result with the paper's metrics (:func:`mer_models.retarget.sequence_metrics`).
+motion with one model to every robot given, writes a CSV per robot (plus an MCAP, a PNG and a
+GIF for one of them) and measures each result with the paper's metrics (:func:`mer_models.retarget.sequence_metrics`).
 A robot the model never saw is retargeted zero-shot (the ``--allow-unseen`` path) and marked so.
 """
 
@@ -26,6 +26,9 @@ from .writers import write_csv, write_mcap
 log = logging.getLogger(__name__)
 
 __all__ = ["register_example_robot", "RobotResult", "retarget_to_all", "format_results"]
+
+#: Frame rate of the demo's GIF [Hz]: every other frame of the 30 Hz motion (half the rendering time).
+DEMO_VIDEO_FPS = 15.0
 
 COLUMNS = (("g_mpbpe", "E_g-mpbpe [m]"), ("mpboe", "E_mpboe [rad]"), ("mpbve", "E_mpbve [m/s]"),
            ("jerk", "E_smooth [rad/s^3]"), ("limit_violation", "limits"))  # fmt: skip
@@ -65,11 +68,13 @@ def retarget_to_all(
 ) -> list[RobotResult]:
     """Retarget ``source_csv`` (``source``'s LAFAN1 layout, 30 Hz) to every robot of ``targets``.
 
-    Writes ``out/<robot>.csv`` for each, and ``out/<show>.mcap`` + ``out/<show>.png`` for ``show``.
+    Writes ``out/<robot>.csv`` for each, and ``out/<show>.mcap`` + ``.png`` + ``.gif`` (the scaled
+    reference and the result side by side, :mod:`mer_models.video`, at ``DEMO_VIDEO_FPS``) for ``show``.
     """
     from mer_data.motion_io import read_lafan1_csv
 
     from .plot import plot_motion
+    from .video import write_video
 
     out = Path(out)
     motion = read_lafan1_csv(source_csv, source)
@@ -88,6 +93,8 @@ def retarget_to_all(
         if robot == show:
             outputs["mcap"] = write_mcap(out / f"{robot}.mcap", res.motion, reference_points=res.reference_points)
             outputs["png"] = plot_motion(out / f"{robot}.png", res.motion, reference_points=res.reference_points)
+            outputs["gif"] = write_video(out / f"{robot}.gif", res.motion, res.reference_points, reference_nodes=res.reference_nodes,
+                                         reference_skeleton=res.reference_skeleton, fps=DEMO_VIDEO_FPS)  # fmt: skip
         results.append(RobotResult(robot, seen, res.motion.num_frames, dt, sequence_metrics(feats, skel, res.motion), outputs))
         log.info("%s -> %s: %.1f s", source, robot, dt)
     return results

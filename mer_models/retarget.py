@@ -65,12 +65,16 @@ class RetargetResult:
         reference_points: (F, K, 3) the scaled reference key points it tracks (world frame) [m].
         method: ``diffusion`` or ``optimize``.
         outputs: kind → path of every file written.
+        reference_nodes: (F, Jr, 3) every node of the reference scaled to the target (world frame) [m].
+        reference_skeleton: the reference (source) skeleton of ``reference_nodes``.
     """
 
     motion: TargetMotion
     reference_points: np.ndarray
     method: str
     outputs: dict[str, Path] = field(default_factory=dict)
+    reference_nodes: np.ndarray | None = None
+    reference_skeleton: Skeleton | None = None
 
 
 def source_features(base_pos: np.ndarray, base_quat: np.ndarray, q: np.ndarray, skel: Skeleton, fps: float) -> np.ndarray:
@@ -177,7 +181,7 @@ def retarget_features(
                                  smooth=opt_smooth)
         out["base_pos"] = out["base_pos"] + shift
     motion = TargetMotion(tgt, fps, out["q"], out["base_pos"], out["base_rot"])
-    return RetargetResult(motion, _reference_points(scaled, shift, eta), method)
+    return RetargetResult(motion, _reference_points(scaled, shift, eta), method, reference_nodes=scaled + shift, reference_skeleton=ref)
 
 
 def retarget_file(
@@ -189,6 +193,8 @@ def retarget_file(
     npz: str | Path | None = None,
     mcap: str | Path | None = None,
     plot: str | Path | None = None,
+    video: str | Path | None = None,
+    video_fps: float | None = None,
     model: str | Path | None = None,
     method: str = "diffusion",
     input_fps: float = MODEL_FPS,
@@ -199,11 +205,19 @@ def retarget_file(
 ) -> RetargetResult:
     """Read a LAFAN1-layout CSV of ``source``, retarget it to ``target`` and write the outputs.
 
-    Extra keywords go to :func:`retarget_features`. Unknown robots, a CSV that does not match the
-    source's layout, non-finite values, a model that never saw the target: each a MerError.
+    ``video`` (.gif or .mp4, :mod:`mer_models.video`) shows the scaled reference and the result
+    side by side, at ``video_fps`` (default the motion's 30 Hz). Extra keywords go to
+    :func:`retarget_features`. Unknown robots, a CSV that does not match the source's layout,
+    non-finite values, a model that never saw the target, a video format that cannot be written:
+    each a MerError.
     """
     from mer_data.motion_io import read_lafan1_csv
     from mer_data.resample import resample
+
+    if video is not None:
+        from .video import check_video_path
+
+        check_video_path(video, video_fps)  # before the work: a bad ending or a missing ffmpeg fails at once
 
     load_robot(source)
     tgt_robot = load_robot(target)
@@ -220,7 +234,7 @@ def retarget_file(
     skel = get_skeleton(source)
     feats = source_features(motion.base_pos, motion.base_quat, motion.node_angles(skel), skel, MODEL_FPS)
     res = retarget_features(feats, skel, tgt_robot.skeleton, method=method, checkpoint=checkpoint, fps=MODEL_FPS, **kw)
-    check_motion_finite(res.motion, out_csv or npz or mcap or plot)  # all outputs or none
+    check_motion_finite(res.motion, out_csv or npz or mcap or plot or video)  # all outputs or none
     if out_csv is not None:
         res.outputs["csv"] = write_csv(out_csv, res.motion)
     if npz is not None:
@@ -231,6 +245,11 @@ def retarget_file(
         from .plot import plot_motion
 
         res.outputs["png"] = plot_motion(plot, res.motion, reference_points=res.reference_points)
+    if video is not None:
+        from .video import write_video
+
+        res.outputs["video"] = write_video(video, res.motion, res.reference_points, reference_nodes=res.reference_nodes,
+                                           reference_skeleton=res.reference_skeleton, fps=video_fps)  # fmt: skip
     return res
 
 

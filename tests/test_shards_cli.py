@@ -91,6 +91,11 @@ def test_demo(tmp_path, capsys):
         a = np.loadtxt(ret / f"{robot}.csv", delimiter=",")
         assert a.shape == (241, 7 + get_skeleton(robot).num_dof) and np.isfinite(a).all(), robot
     assert [p.name for p in ret.glob("*.mcap")] == ["h1.mcap"] and [p.name for p in ret.glob("*.png")] == ["h1.png"]
+    from PIL import Image
+
+    with Image.open(ret / "h1.gif") as gif:  # the scaled reference | the retarget, 241 frames shown at 15 Hz
+        assert gif.n_frames == 121 and gif.size == (800, 400)
+    assert "GIF (scaled reference | retarget):" in out
     for line in (rows[r] for r in robots):  # five finite metrics per robot
         vals = [float(x) for x in line.split()[-6:]]
         assert np.isfinite(vals).all(), line

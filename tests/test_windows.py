@@ -95,3 +95,27 @@ def test_features_agree_with_the_foundation_fk_on_real_clips(lafan1_dir, robot, 
     ref = motion_features(st32, torch.from_numpy(base.astype(np.float32)), torch.from_numpy(m.base_quat[idx].astype(np.float32)),
                           torch.from_numpy(m.node_angles(skel)[idx].astype(np.float32)))  # fmt: skip
     assert feats.tobytes() == ref.numpy().tobytes()
+
+
+@pytest.mark.parametrize("frames", [1, 2, 3, 4, 61])
+@pytest.mark.parametrize("dim", [-3, 0, 1])
+def test_finite_difference_is_numpy_gradient(frames, dim):
+    """Second order inside and at both ends (edge_order=2), as numpy.gradient (first order with 2 frames, zeros with 1)."""
+    shape = [4, 5, 3]
+    shape.insert(dim % 4, frames)  # time axis at ``dim`` of a 4-d array
+    x = torch.from_numpy(np.random.default_rng(frames).normal(size=shape) * 3.0)
+    got = finite_difference(x, 30.0, dim=dim)
+    assert got.shape == x.shape
+    if frames >= 3:
+        ref = np.gradient(x.numpy(), 1 / 30.0, axis=dim, edge_order=2)
+    elif frames == 2:
+        ref = np.gradient(x.numpy(), 1 / 30.0, axis=dim, edge_order=1)
+    else:
+        ref = np.zeros(shape)
+    np.testing.assert_allclose(got.numpy(), ref, rtol=1e-12, atol=1e-12)
+    x32 = x.float().requires_grad_()
+    v = finite_difference(x32, 30.0, dim=dim)  # float32 and autograd (the energy differentiates through it)
+    np.testing.assert_allclose(v.detach().numpy(), ref, rtol=1e-5, atol=1e-4)
+    if frames >= 2:
+        v.square().sum().backward()
+        assert x32.grad is not None and torch.isfinite(x32.grad).all()

@@ -11,7 +11,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "retarget",
         help="retarget a LAFAN1-layout CSV to another robot",
         description="Retarget INPUT (CSV in the source robot's LAFAN1 layout) to the target robot. "
-        "Outputs: CSV in the target's layout (-o), BeyondMimic npz, Foxglove MCAP, PNG film strip. "
+        "Outputs: CSV in the target's layout (-o), BeyondMimic npz, Foxglove MCAP, PNG film strip, GIF/MP4 video. "
         "Or a whole dataset: --input DIR|hf://REPO --targets ROBOT... --out DIR retargets every clip to every "
         "target (batched, resumable, --shard-index/--num-shards for array jobs; docs/model.md).",
     )
@@ -37,6 +37,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    "(breadth-first, as Isaac Lab/BeyondMimic; verified robots only: g1) (docs/trackers.md)")
     p.add_argument("--mcap", help="also write a Foxglove MCAP")
     p.add_argument("--plot", help="also write a PNG of stick figures over time")
+    p.add_argument("--video", metavar="OUT.gif|OUT.mp4", help="also write a video: the scaled reference and the retarget side by "
+                   "side (GIF: base install; MP4: needs ffmpeg)")
+    p.add_argument("--video-fps", type=float, help="frame rate of the video [Hz] (default: the motion's 30; lower renders faster)")
     p.add_argument("--model", help="checkpoint folder, zoo name or ORG/NAME for --method diffusion "
                    "(default: the bundled model mer-tiny-synthetic, for demos only)")
     p.add_argument("--method", choices=["diffusion", "optimize"], help="default: diffusion for a file, optimize for a dataset")
@@ -60,8 +63,8 @@ def cmd_retarget(args) -> int:
     if args.input is None or args.target is None:
         raise MerError("give an INPUT file and --target, or a dataset: --input DIR --targets ROBOT... --out DIR")
     args.method = args.method or "diffusion"
-    if not any([args.output, args.npz, args.mcap, args.plot]):
-        raise MerError("nothing to write", fix="give -o OUT.csv and/or --npz/--mcap/--plot")
+    if not any([args.output, args.npz, args.mcap, args.plot, args.video]):
+        raise MerError("nothing to write", fix="give -o OUT.csv and/or --npz/--mcap/--plot/--video")
     if args.refine < 0:
         raise MerError(f"--refine must be >= 0, got {args.refine}")
     kw = {"steps": args.steps, "guidance": args.guidance, "seed": args.seed, "allow_unseen": args.allow_unseen, "refine": args.refine}
@@ -77,6 +80,7 @@ def cmd_retarget(args) -> int:
         print(f"no --model: using the bundled demo model {model!r} (synthetic training, not for real use)", file=sys.stderr)
     res = retarget_file(
         args.input, args.source, args.target, out_csv=args.output, npz=args.npz, mcap=args.mcap, plot=args.plot,
+        video=args.video, video_fps=args.video_fps,
         model=model, method=args.method, input_fps=args.fps, device=args.device, npz_fps=args.npz_fps, npz_order=args.npz_order, **kw,
     )  # fmt: skip
     m = res.motion
@@ -102,6 +106,9 @@ def _dataset(args) -> int:
     if args.npz_order != "mjlab":
         raise MerError(f"--npz-order {args.npz_order} is for single-file runs; dataset runs write the mjlab order",
                        fix="drop --npz-order, or retarget the clips one by one (mer retarget CLIP.csv --npz OUT.npz --npz-order isaaclab)")
+    if args.video is not None:
+        raise MerError("--video writes one file's video; a dataset run does not make videos",
+                       fix="retarget the clip you want to see on its own: mer retarget CLIP.csv --source ... --target ... --video OUT.gif")
     method = args.method or "optimize"
     checkpoint, kw = None, {}
     if method == "diffusion":
