@@ -25,6 +25,7 @@ from ..errors import ShardFormatError
 from ..samples import TrainingSample
 from ..skeleton import KEYPOINTS, Skeleton
 from ..windows import window_features
+from .hub import resolve_hub_paths
 from .reader import PathsLike, ShardFile, find_shards, open_shard
 
 __all__ = ["ShardDataset", "WindowRef"]
@@ -47,7 +48,8 @@ class WindowRef:
 
 
 class ShardDataset(torch.utils.data.Dataset):
-    """Samples of the shards at ``paths`` (a shard file, a folder of shards, or a list of either).
+    """Samples of the shards at ``paths`` (a shard file, a folder of shards, ``hf://datasets/OWNER/NAME[@REV]``,
+    or a list of these; a Hub dataset is read through the Hub cache, see :mod:`.hub`).
 
     Args:
         split: keep the samples of ``"train"`` or ``"eval"`` windows only (default: all).
@@ -63,7 +65,7 @@ class ShardDataset(torch.utils.data.Dataset):
         targets: Iterable[str] | None = None,
         augmented: bool = True,
     ) -> None:
-        self.paths = find_shards(paths)
+        self.paths = find_shards(resolve_hub_paths(paths))
         self.files: list[ShardFile] = [open_shard(p) for p in self.paths]
         self._check_compatible()
         self._skel_json: dict[str, str] = {}
