@@ -113,6 +113,13 @@ def test_push_then_read_back_through_the_hub_cache_online_and_offline(synthetic_
         assert set(files) == {".gitattributes", "README.md", "mer_meta.json", "g1-train-00000-of-00001.h5"}
         assert files["g1-train-00000-of-00001.h5"].data == (synthetic_shards / "g1-train-00000-of-00001.h5").read_bytes()
         assert SHARDS_REPO not in hub.repos  # a dataset repository, not a model
+        from huggingface_hub import DatasetCard
+        from hub_server import validate_metadata
+
+        card = DatasetCard(files["README.md"].data.decode())  # the client's parser, on what was pushed
+        assert card.data.task_categories == ["robotics"] and card.data.license == "apache-2.0"
+        assert validate_metadata(card.data.to_dict(), "dataset") == []
+        assert json.loads(files["mer_meta.json"].data)["shards"]["g1-train-00000-of-00001.h5"]["targets"] == ["g1", "atlas"]
 
         url = f"hf://datasets/{SHARDS_REPO}@{head}"
         run = subprocess.run([sys.executable, "-c", _READ_BACK, url], env=env, capture_output=True, text=True, timeout=300)
