@@ -15,7 +15,8 @@ by every denoising step.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Mapping
+from pathlib import Path
+from typing import Any, Mapping
 
 import torch
 from torch import nn
@@ -162,3 +163,31 @@ class RetargetModel(nn.Module):
 
     def num_parameters(self) -> int:
         return sum(p.numel() for p in self.parameters())
+
+    # ---- Hub conventions (mer_models.pretrained; imported on use) ---------------------------------
+    @classmethod
+    def from_pretrained(cls, pretrained_model_name_or_path: str | Path, *, revision: str | None = None,
+                        local_files_only: bool = False, cache_dir: str | Path | None = None, token: str | None = None,
+                        device: str | torch.device = "cpu") -> "RetargetModel":
+        """A zoo name, a local checkpoint folder or a Hub repo id -> the model, weights loaded strictly."""
+        from mer_data.errors import CheckpointError
+
+        from .pretrained import from_pretrained
+
+        model = from_pretrained(pretrained_model_name_or_path, revision=revision, local_files_only=local_files_only,
+                                cache_dir=cache_dir, token=token, device=device)  # fmt: skip
+        if not isinstance(model, cls):
+            raise CheckpointError(f"the checkpoint holds a {type(model).__name__}, not a {cls.__name__}")
+        return model
+
+    def save_pretrained(self, save_directory: str | Path, **kwargs: Any) -> Path:
+        """Write a mer checkpoint folder (:func:`mer_models.pretrained.save_pretrained`)."""
+        from .pretrained import save_pretrained
+
+        return save_pretrained(self, save_directory, **kwargs)
+
+    def push_to_hub(self, repo_id: str, **kwargs: Any) -> str:
+        """Upload to the Hub with a card (:func:`mer_models.pretrained.push_to_hub`); returns the weights' commit."""
+        from .pretrained import push_to_hub
+
+        return push_to_hub(self, repo_id, **kwargs)

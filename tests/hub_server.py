@@ -1,7 +1,9 @@
 """A loopback Hugging Face Hub: enough of the Hub's HTTP protocol that the *real* huggingface_hub
 client (2.x) downloads, caches and uploads against it through ``HF_ENDPOINT``.
 
-What it speaks (model repositories only), as huggingface_hub 2.4 calls it:
+What it speaks (model and dataset repositories; a dataset's paths carry the Hub's ``datasets/``
+prefix: ``/datasets/{org}/{name}/resolve/...``, ``/api/datasets/...``, ``/datasets/{org}/{name}.git/...``),
+as huggingface_hub 2.4 calls it:
 
 * ``HEAD``/``GET /{org}/{name}/resolve/{revision}/{path}``: ``X-Repo-Commit``, ``ETag`` (git blob
   sha1), ``Content-Length``, ``Accept-Ranges``; ``Range: bytes=N-`` gives 206. An LFS file answers
@@ -10,7 +12,8 @@ What it speaks (model repositories only), as huggingface_hub 2.4 calls it:
   (``RepoNotFound``, ``RevisionNotFound``, ``EntryNotFound``) and ``X-Error-Message``.
 * ``GET /api/models/{repo}[/revision/{rev}]`` (model info with siblings), ``.../tree/{rev}[/{path}]``,
   ``.../refs``; ``GET /api/agent-harnesses`` (the client asks for it once; an empty registry).
-* Uploads: ``POST /api/repos/create``, ``POST /api/validate-yaml``, ``POST .../preupload/{rev}``,
+* Uploads: ``POST /api/repos/create``, ``POST /api/validate-yaml`` (the Hub's metadata checks for the
+  keys mer writes, see :func:`validate_metadata`), ``POST .../preupload/{rev}``,
   the git-LFS batch API ``POST /{repo}.git/info/lfs/objects/batch`` with basic ``PUT`` transfer and
   ``verify``, and ``POST .../commit/{rev}`` (ndjson: header, file, lfsFile, deletedFile,
   deletedFolder; ``parentCommit`` checked). Xet storage is not spoken: clients must run with
@@ -43,7 +46,7 @@ from urllib.parse import parse_qs, unquote, urlparse, urlsplit
 
 import yaml
 
-__all__ = ["HubServer", "FakeHub"]
+__all__ = ["HubServer", "FakeHub", "validate_metadata"]
 
 GITATTRIBUTES = b"*.safetensors filter=lfs diff=lfs merge=lfs -text\n*.bin filter=lfs diff=lfs merge=lfs -text\n"
 LFS_SUFFIXES = (".safetensors", ".bin", ".pt", ".pth", ".ckpt", ".h5", ".npz", ".onnx", ".msgpack")
@@ -95,6 +98,60 @@ class Repo:
         return self.commits.get(oid) if oid else None
 
 
+#: A subset of the Hub's licence identifiers (https://huggingface.co/docs/hub/repositories-licenses).
+HUB_LICENSES = {"apache-2.0", "mit", "bsd-3-clause", "cc-by-4.0", "cc-by-sa-4.0", "cc-by-nc-4.0", "cc-by-nc-sa-4.0",
+                "cc-by-nc-nd-4.0", "cc-by-nd-4.0", "cc0-1.0", "openrail", "other", "unknown"}
+#: A subset of the Hub's task ids (pipeline tags / dataset task categories); "robotics" is LeRobot's.
+HUB_TASKS = {"robotics", "reinforcement-learning", "time-series-forecasting", "image-classification", "text-generation",
+             "video-classification", "tabular-regression", "other"}
+_HUB_REPO_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*/[A-Za-z0-9][A-Za-z0-9._-]*$")
+
+
+def validate_metadata(meta: dict, repo_type: str) -> list[str]:
+    """The Hub's card metadata checks for the keys mer writes; a list of error messages (empty: accepted).
+
+    Types as the Hub's schema has them: ``license`` a known id (or a list of them), ``tags`` a list
+    of strings, ``library_name`` a string; models: ``pipeline_tag`` a known task, ``base_model`` and
+    ``datasets`` repo ids; datasets: ``task_categories`` known tasks, ``configs`` a list of
+    ``{config_name, data_files}``."""
+    errors = []
+
+    def strings(key):
+        v = meta.get(key)
+        if v is not None and not (isinstance(v, list) and all(isinstance(x, str) for x in v)):
+            errors.append(f'"{key}" must be an array of strings')
+            return []
+        return v or []
+
+    lic = meta.get("license")
+    for x in ([lic] if isinstance(lic, str) else lic if isinstance(lic, list) else [] if lic is None else [None]):
+        if x not in HUB_LICENSES:
+            errors.append(f'"license" must be one of the Hub\'s licence ids, not {x!r}')
+    strings("tags")
+    if meta.get("library_name") is not None and not isinstance(meta["library_name"], str):
+        errors.append('"library_name" must be a string')
+    if repo_type == "model":
+        if meta.get("pipeline_tag") is not None and meta["pipeline_tag"] not in HUB_TASKS:
+            errors.append(f'"pipeline_tag" must be a known task, not {meta["pipeline_tag"]!r}')
+        base = meta.get("base_model")
+        for x in ([base] if isinstance(base, str) else base if isinstance(base, list) else [] if base is None else [None]):
+            if not (isinstance(x, str) and _HUB_REPO_ID.match(x)):
+                errors.append(f'"base_model" must be a model repo id (OWNER/NAME), not {x!r}')
+        for x in strings("datasets"):
+            if not _HUB_REPO_ID.match(x) and "/" in x:
+                errors.append(f'"datasets" must hold dataset ids, not {x!r}')
+    elif repo_type == "dataset":
+        for x in strings("task_categories"):
+            if x not in HUB_TASKS:
+                errors.append(f'"task_categories" must hold known tasks, not {x!r}')
+        configs = meta.get("configs")
+        if configs is not None:
+            if not isinstance(configs, list) or not all(isinstance(c, dict) and isinstance(c.get("config_name"), str)
+                                                         and "data_files" in c for c in configs):
+                errors.append('"configs" must be a list of {config_name, data_files}')
+    return errors
+
+
 class _Reply(Exception):
     def __init__(self, status: int, body: bytes | dict | list = b"", headers: dict | None = None, error: str | None = None):
         self.status, self.body, self.headers = status, body, dict(headers or {})
@@ -110,7 +167,8 @@ class HubServer:
     def __init__(self, *, token: str | None = None, max_requests: int = 5000, max_body: int = 256 << 20,
                  lifetime_s: float = 300.0) -> None:
         self.token, self.max_requests, self.max_body = token, max_requests, max_body
-        self.repos: dict[str, Repo] = {}
+        self.repos: dict[str, Repo] = {}  # model repositories
+        self.dataset_repos: dict[str, Repo] = {}
         self.lfs_store: dict[str, bytes] = {}
         self._tampered: dict[tuple[str, str], bytes] = {}
         self._log: list[tuple[str, str]] = []
@@ -160,10 +218,13 @@ class HubServer:
         self._tampered[(repo_id, path)] = data
 
     # -- repository model --------------------------------------------------------------------
-    def create_repo(self, repo_id: str, private: bool = False) -> Repo:
+    def _kind(self, kind: str) -> dict[str, Repo]:
+        return self.dataset_repos if kind == "dataset" else self.repos
+
+    def create_repo(self, repo_id: str, private: bool = False, kind: str = "model") -> Repo:
         with self._lock:
             repo = Repo(repo_id, private)
-            self.repos[repo_id] = repo
+            self._kind(kind)[repo_id] = repo
             self._commit(repo, None, "initial commit", {".gitattributes": Blob(GITATTRIBUTES, False)})
             return repo
 
@@ -240,8 +301,8 @@ class HubServer:
         if self.token and h.headers.get("Authorization") != f"Bearer {self.token}":
             raise _Reply(401, {"error": "Invalid credentials in Authorization header"})
 
-    def _repo(self, repo_id: str, h) -> Repo:
-        repo = self.repos.get(repo_id)
+    def _repo(self, repo_id: str, h, kind: str = "model") -> Repo:
+        repo = self._kind(kind).get(repo_id)
         if repo is None or (repo.private and h.headers.get("Authorization") != f"Bearer {self.token}"):
             raise _Reply(404, {"error": "Repository not found"}, error="RepoNotFound")
         return repo
@@ -273,6 +334,11 @@ class HubServer:
         url = urlsplit(h.path)
         parts = url.path.split("/")[1:]
         query = {k: v[-1] for k, v in parse_qs(url.query).items()}
+        kind = "model"
+        if parts and parts[0] == "datasets":  # /datasets/{org}/{name}/resolve/..., /datasets/{org}/{name}.git/...
+            kind, parts = "dataset", parts[1:]
+        elif parts[:2] == ["api", "datasets"]:
+            kind, parts = "dataset", ["api", "models", *parts[2:]]
         if url.path == "/api/agent-harnesses":
             return 200, {"standardEnvVars": [], "harnesses": {}}, {}
         if url.path == "/api/repos/create" and h.command == "POST":
@@ -285,11 +351,11 @@ class HubServer:
         if len(parts) == 2 and parts[0] == "lfs-upload" and h.command == "PUT":
             return self._lfs_put(h, parts[1], body)
         if len(parts) >= 5 and parts[2] == "resolve" and h.command in ("GET", "HEAD"):
-            return self._resolve(h, f"{parts[0]}/{parts[1]}", unquote(parts[3]), unquote("/".join(parts[4:])))
+            return self._resolve(h, f"{parts[0]}/{parts[1]}", unquote(parts[3]), unquote("/".join(parts[4:])), kind)
         if len(parts) == 6 and parts[1].endswith(".git") and parts[2:] == ["info", "lfs", "objects", "batch"]:
-            return self._lfs_batch(h, f"{parts[0]}/{parts[1][:-4]}", json.loads(body))
+            return self._lfs_batch(h, f"{parts[0]}/{parts[1][:-4]}", json.loads(body), kind)
         if len(parts) >= 4 and parts[:2] == ["api", "models"]:
-            repo = self._repo(f"{parts[2]}/{parts[3]}", h)
+            repo = self._repo(f"{parts[2]}/{parts[3]}", h, kind)
             rest = parts[4:]
             if h.command == "GET" and (not rest or rest[0] == "revision"):
                 return self._info(repo, self._at(repo, unquote(rest[1]) if rest else "main"))
@@ -307,8 +373,8 @@ class HubServer:
         raise _Reply(404, {"error": f"test hub: no route for {h.command} {url.path}"})
 
     # -- endpoints ------------------------------------------------------------------------------
-    def _resolve(self, h, repo_id: str, rev: str, path: str):
-        repo = self._repo(repo_id, h)
+    def _resolve(self, h, repo_id: str, rev: str, path: str, kind: str = "model"):
+        repo = self._repo(repo_id, h, kind)
         commit = self._at(repo, rev)
         blob = commit.files.get(path)
         base = {"X-Repo-Commit": commit.oid}
@@ -345,13 +411,15 @@ class HubServer:
 
     def _create(self, h, req: dict):
         self._auth(h)
-        if req.get("type") not in (None, "model"):
-            raise _Reply(400, {"error": "test hub: model repositories only"})
+        kind = req.get("type") or "model"
+        if kind not in ("model", "dataset"):
+            raise _Reply(400, {"error": "test hub: model and dataset repositories only"})
         repo_id = f"{req.get('organization')}/{req['name']}" if req.get("organization") else f"user/{req['name']}"
-        if repo_id in self.repos:
-            raise _Reply(409, {"error": "You already created this model repo", "url": f"{self.url}/{repo_id}"})
-        self.create_repo(repo_id, private=req.get("visibility") == "private" or bool(req.get("private")))
-        return 200, {"url": f"{self.url}/{repo_id}", "name": repo_id, "id": repo_id}, {}
+        url = f"{self.url}/{'datasets/' if kind == 'dataset' else ''}{repo_id}"
+        if repo_id in self._kind(kind):
+            raise _Reply(409, {"error": f"You already created this {kind} repo", "url": url})
+        self.create_repo(repo_id, private=req.get("visibility") == "private" or bool(req.get("private")), kind=kind)
+        return 200, {"url": url, "name": repo_id, "id": repo_id}, {}
 
     def _validate_yaml(self, req: dict):
         text = req.get("content", "")
@@ -362,6 +430,9 @@ class HubServer:
                 raise _Reply(400, {"errors": [{"message": f"invalid YAML: {exc}"}], "warnings": []})
             if meta is not None and not isinstance(meta, dict):
                 raise _Reply(400, {"errors": [{"message": "metadata must be a mapping"}], "warnings": []})
+            errors = validate_metadata(meta or {}, req.get("repoType") or "model")
+            if errors:
+                raise _Reply(400, {"errors": [{"message": e} for e in errors], "warnings": []})
         return 200, {"errors": [], "warnings": []}, {}
 
     def _preupload(self, repo: Repo, rev: str, req: dict):
@@ -375,9 +446,9 @@ class HubServer:
             files.append({"path": f["path"], "uploadMode": "lfs" if lfs else "regular", "shouldIgnore": False, "oid": oid})
         return 200, {"files": files, "commitOid": commit.oid}, {}
 
-    def _lfs_batch(self, h, repo_id: str, req: dict):
+    def _lfs_batch(self, h, repo_id: str, req: dict, kind: str = "model"):
         self._auth(h)
-        self._repo(repo_id, h)
+        self._repo(repo_id, h, kind)
         objects = []
         for o in req.get("objects", []):
             entry = {"oid": o["oid"], "size": o["size"], "authenticated": True}

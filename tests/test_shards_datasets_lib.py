@@ -39,7 +39,10 @@ def test_load_dataset_hdf5_gives_one_row_per_window(out, tmp_path, split):
 
 
 def test_card_declares_a_config_per_robot_and_split(out, tmp_path):
-    card = (out / "README.md").read_text()
-    assert "- config_name: h1_eval" in card and 'path: "h1-eval-*.h5"' in card
+    from huggingface_hub import DatasetCard
+
+    data = DatasetCard.load(out / "README.md").data  # the client's own parser
+    assert {"config_name": "h1_eval", "data_files": [{"split": "eval", "path": "h1-eval-*.h5"}]} in data.configs
+    assert data.task_categories == ["robotics"] and data.license == "cc-by-nc-nd-4.0" and "mer" in data.tags
     ds = datasets.load_dataset(str(out), "h1_eval", cache_dir=str(tmp_path / "hf"))
     assert ds["eval"].num_rows == open_shard(next(out.glob("h1-eval-*.h5"))).num_rows

@@ -178,3 +178,53 @@ def test_card_from_checkpoint_records_its_metadata(tmp_path):
     assert "talos" in card.summary
     assert card.files["model.safetensors"].size == (ck / "model.safetensors").stat().st_size
     assert "optimizer.safetensors" not in card.files
+
+
+# ---- Hub conventions: the metadata as huggingface_hub and the Hub read it ----------------------------------------
+
+def test_card_metadata_parses_with_huggingface_hubs_own_parser_and_passes_the_hub_checks():
+    from huggingface_hub import ModelCard as HubModelCard
+    from huggingface_hub.repocard import metadata_load
+
+    from hub_server import validate_metadata
+    from mer_data.shards.sources import LAFAN1_REPO
+
+    for path in sorted((REPO / "cards" / "models").glob("*.md")):
+        meta = metadata_load(path)
+        card = read_card(path)
+        assert meta["pipeline_tag"] == "robotics" and meta["library_name"] == "mer" and meta["license"] == card.license
+        assert meta["tags"][0] == "robotics" and meta["mer"] == card.to_meta()  # mer's own block kept whole
+        assert meta.get("datasets") == ([LAFAN1_REPO] if card.training.get("dataset") == "lafan1" else None)
+        assert validate_metadata(meta, "model") == [], path
+        hub_card = HubModelCard.load(path)
+        assert hub_card.data.pipeline_tag == "robotics"
+        assert str(hub_card) == path.read_text(encoding="utf-8")  # the client rewrites it unchanged
+    for robot in ("talos", "valkyrie"):  # fine-tunes name their base the Hub's way: a top-level repo id
+        meta = metadata_load(REPO / "cards" / "models" / f"mer-base-{robot}.md")
+        assert meta["base_model"] == "mer-robotics/mer-base" and meta["mer"]["base_model"] == "mer-base"
+    assert "base_model" not in metadata_load(REPO / "cards" / "models" / "mer-base.md")
+
+
+def test_the_hub_checks_can_fail():
+    from hub_server import validate_metadata
+
+    meta = dict(yaml.safe_load(render_card(_card()).split("---\n")[1]))
+    assert validate_metadata(meta, "model") == []
+    assert validate_metadata({**meta, "license": "cc-by-nc-nd"}, "model")
+    assert validate_metadata({**meta, "pipeline_tag": "retargeting"}, "model")
+    assert validate_metadata({**meta, "base_model": "mer-base"}, "model")  # a zoo name is not a repo id
+    assert validate_metadata({**meta, "tags": "robotics"}, "model")
+
+
+def test_dataset_cards_parse_with_huggingface_hubs_own_parser_and_pass_the_hub_checks():
+    from huggingface_hub import DatasetCard
+
+    from hub_server import validate_metadata
+
+    for path in sorted((REPO / "cards" / "datasets").glob("*.md")):
+        card = DatasetCard.load(path)
+        data = card.data.to_dict()
+        assert data["task_categories"] == ["robotics"] and data["license"] == "cc-by-nc-nd-4.0" and "mer" in data["tags"]
+        assert all(c["config_name"].endswith(("_train", "_eval")) for c in data["configs"])
+        assert validate_metadata(data, "dataset") == [], path
+        assert str(card) == path.read_text(encoding="utf-8")

@@ -49,10 +49,53 @@ def _op(spec: dict):
         return {"commit": r.commit, "card_commit": r.card_commit, "card_path": str(r.card_path)}
     if op == "list":
         return [{"name": e.name, "where": zoo.where(e), "source": e.source} for e in zoo.list_models()]
+    if op == "from_pretrained":
+        from mer_models import RetargetModel
+
+        m = RetargetModel.from_pretrained(spec["spec"], revision=spec.get("revision"), cache_dir=spec.get("cache_dir"),
+                                          local_files_only=spec.get("local_files_only", False))
+        if spec.get("save"):
+            import numpy as np
+
+            np.save(spec["save"], model_outputs(m))
+        info = m.pretrained_info
+        return {"source": info.source, "repo_id": info.repo_id, "revision": info.revision, "folder": str(info.folder),
+                "step": info.step, "targets": sorted(info.robots["targets"])}
+    if op == "push_to_hub":
+        from mer_models import RetargetModel
+
+        return {"commit": RetargetModel.from_pretrained(spec["spec"]).push_to_hub(spec["repo_id"], private=spec.get("private", False))}
+    if op == "hub_card":  # the card as huggingface_hub reads it, after the Hub's validation
+        from huggingface_hub import ModelCard as HubModelCard
+
+        card = HubModelCard.load(spec["repo_id"])
+        card.validate()
+        return card.data.to_dict()
+    if op == "upload_folder":  # a push by other tools (e.g. a partial or corrupted checkpoint)
+        from huggingface_hub import HfApi
+
+        api = HfApi()
+        api.create_repo(spec["repo_id"], exist_ok=True)
+        return api.upload_folder(folder_path=spec["folder"], repo_id=spec["repo_id"]).oid
     if op == "cached":
         p = hub.cached_file(spec["repo_id"], spec["filename"], spec["revision"])
         return str(p) if p else None
     raise ValueError(f"unknown op {op!r}")
+
+
+def model_outputs(model):
+    """The denoiser's output on a fixed batch and noise (G1 -> G1, H1): equal models give equal arrays."""
+    import torch
+
+    sys.path.insert(0, str(REPO / "tests"))
+    from model_helpers import mixed_batch
+
+    torch.manual_seed(0)
+    batch = mixed_batch(("g1", "h1"))
+    with torch.no_grad():
+        cond = model.conditions(batch)
+        x = torch.randn(cond.shape)
+        return model.denoise(x, 0.5, cond).numpy()
 
 
 def main(ops: list[dict]) -> list[dict]:

@@ -1,4 +1,4 @@
-"""``mer shards build|inspect|card``."""
+"""``mer shards build|inspect|card|push``."""
 
 from __future__ import annotations
 
@@ -7,14 +7,14 @@ import json
 import os
 import sys
 
-from ..shards import BuildConfig, build_shards, format_inspection, inspect_shards, write_card
+from ..shards import BuildConfig, build_shards, format_inspection, inspect_shards, push_shards, write_card, write_sidecar
 from ..shards.config import FORMATS, PAPER_TARGETS
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse._SubParsersAction:
     """Add ``mer shards``; returns its sub-command group (``mer_models`` adds ``solve`` to it)."""
     p = sub.add_parser("shards", help="build and inspect training shards (LAFAN1 robot CSVs -> HDF5/MCAP)")
-    ss = p.add_subparsers(dest="shards_cmd", required=True, metavar="{build,inspect,card,solve}")
+    ss = p.add_subparsers(dest="shards_cmd", required=True, metavar="{build,inspect,card,push,solve}")
 
     b = ss.add_parser("build", help="build training shards from robot motion CSVs or synthetic motion")
     src = b.add_mutually_exclusive_group(required=True)
@@ -49,6 +49,15 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse._SubParsersAction:
     c.add_argument("--out", metavar="FILE", help="where to write it (default DIR/README.md)")
     c.add_argument("--input-label", metavar="INPUT", help="input to show in the rebuild command (e.g. hf://OWNER/NAME)")
     c.set_defaults(func=cmd_card)
+
+    u = ss.add_parser("push", help="upload a shard folder to a Hub dataset repository (shards, card, mer_meta.json)")
+    u.add_argument("path", metavar="DIR", help="shard folder (one build)")
+    u.add_argument("repo_id", metavar="REPO_ID", help="dataset repository OWNER/NAME (created if missing)")
+    u.add_argument("--private", action="store_true", help="create the repository private")
+    u.add_argument("--message", metavar="TEXT", help="commit message")
+    u.add_argument("--ignore-license", action="store_true",
+                   help="push LAFAN1-derived shards (CC BY-NC-ND 4.0) anyway: only if you hold the rights to distribute them")
+    u.set_defaults(func=cmd_push)
     return ss
 
 
@@ -104,4 +113,13 @@ def cmd_inspect(args) -> int:
 
 def cmd_card(args) -> int:
     print(write_card(args.path, input_label=args.input_label, dest=args.out))
+    if args.out is None:
+        print(write_sidecar(args.path))
+    return 0
+
+
+def cmd_push(args) -> int:
+    res = push_shards(args.path, args.repo_id, private=args.private, ignore_license=args.ignore_license, message=args.message)
+    print(f"pushed {len(res.files)} file(s) to {res.repo_id} at {res.commit}")
+    print(f"read it with ShardDataset(\"hf://datasets/{res.repo_id}@{res.commit}\")")
     return 0

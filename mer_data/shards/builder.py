@@ -39,6 +39,7 @@ from .mcap_io import McapShardWriter
 from .plan import Part, check_out, clean_temp, part_key, plan_build, temp_name
 from .reader import open_shard
 from .report import BuildReport
+from .sidecar import write_sidecar
 from .schema import ShardMeta
 from .synthetic_source import source_sha256, source_size
 
@@ -216,6 +217,7 @@ def _build(cfg: BuildConfig, out: Path, plan, t0: float, *, workers: int, shard_
     report.seconds = time.perf_counter() - t0
     try:
         report.card = str(write_card(out))
+        write_sidecar(out)
     except ShardFormatError as exc:  # e.g. this shard index got no clips at all
         log.warning("no dataset card written: %s", exc)
     suffix = "" if shard_index is None else f"-{shard_index:05d}-of-{cfg.num_shards:05d}"

@@ -2,8 +2,10 @@
 
 The card is a Hugging Face dataset card (YAML header + Markdown): licence (LAFAN1 is
 CC BY-NC-ND 4.0), provenance (the source files with their sha256), counts, the configuration and
-the command that rebuilds the set. For HDF5 sets the header declares one ``datasets`` config per
-robot and split (``g1_train``, ``g1_eval``...), so ``load_dataset(<folder or repo>, "g1_train")`` works.
+the command that rebuilds the set. The header is built and written by huggingface_hub's own
+``DatasetCardData`` / ``DatasetCard`` (``license``, ``pretty_name``, ``task_categories: [robotics]``,
+``tags``, ``configs``). For HDF5 sets it declares one ``datasets`` config per robot and split
+(``g1_train``, ``g1_eval``...), so ``load_dataset(<folder or repo>, "g1_train")`` works.
 """
 
 from __future__ import annotations
@@ -15,11 +17,15 @@ from ..atomic import atomic_write
 from ..errors import ShardFormatError
 from .reader import PathsLike, find_shards, open_shard
 from .schema import FORMAT_NAME, FORMAT_VERSION, ShardMeta
+from .sidecar import META_FILE
 
-__all__ = ["render_card", "write_card", "rebuild_command", "LICENSE_ID"]
+__all__ = ["render_card", "write_card", "rebuild_command", "card_data", "LICENSE_ID", "TASK_CATEGORY"]
 
 LICENSE_ID = "cc-by-nc-nd-4.0"
 SYNTHETIC_LICENSE_ID = "apache-2.0"
+TASK_CATEGORY = "robotics"
+LAFAN1_TAGS = ["robotics", "motion-retargeting", "humanoid", "lafan1", "mer"]
+SYNTHETIC_TAGS = ["robotics", "motion-retargeting", "humanoid", "synthetic", "mer"]
 _DEFAULTS = {"format": "hdf5", "window": 60, "fps": 30.0, "split": "paper", "augment": 4, "seed": 0, "num_shards": 1}
 
 
@@ -40,6 +46,32 @@ def rebuild_command(cfg: dict, input_label: str | None = None, out: str = "OUT")
     return " ".join(parts)
 
 
+def card_data(*, license: str, pretty_name: str, tags: list[str], configs: list[dict] | None = None):
+    """huggingface_hub's ``DatasetCardData`` of a shard set (the Hub keys of its card)."""
+    from huggingface_hub import DatasetCardData
+
+    return DatasetCardData(license=license, pretty_name=pretty_name, task_categories=[TASK_CATEGORY], tags=list(tags),
+                           configs=configs or None)
+
+
+def hub_card(data, body: str) -> str:
+    """``---`` header ``---`` + body, written by huggingface_hub's ``DatasetCard`` (as ``push_to_hub`` writes it)."""
+    from huggingface_hub import DatasetCard
+
+    return str(DatasetCard(f"---\n{data.to_yaml()}\n---\n\n{body}"))
+
+
+def _configs(metas: list[tuple[Path, ShardMeta, str]]) -> list[dict] | None:
+    """One ``datasets`` config per robot and split of an HDF5 set: their rows differ in shape (nodes, samples)."""
+    if metas[0][2] != "hdf5":
+        return None
+    out = []
+    for r in sorted({m.robot for _, m, _ in metas}):
+        for split in sorted({m.split for _, m, _ in metas if m.robot == r}, reverse=True):
+            out.append({"config_name": f"{r}_{split}", "data_files": [{"split": split, "path": f"{r}-{split}-*.h5"}]})
+    return out
+
+
 def render_card(paths: PathsLike, *, input_label: str | None = None) -> str:
     """Markdown dataset card of the shards at ``paths`` (files or folders)."""
     shards = [(p, open_shard(p)) for p in find_shards(paths)]
@@ -48,19 +80,23 @@ def render_card(paths: PathsLike, *, input_label: str | None = None) -> str:
     if len(build_ids) != 1:
         raise ShardFormatError(f"the shards come from {len(build_ids)} different builds; render one card per build")
     cfg = metas[0][1].config
+    robots = ", ".join(sorted({m.robot for _, m, _ in metas}))
+    body = render_lafan1_card(metas, cfg, input_label)
     if cfg.get("synthetic"):
-        return _synthetic_card(render_lafan1_card(metas, cfg, input_label), cfg)
-    return render_lafan1_card(metas, cfg, input_label)
+        data = card_data(license=SYNTHETIC_LICENSE_ID, pretty_name=f"mer training shards: synthetic robot motion ({robots})",
+                         tags=SYNTHETIC_TAGS, configs=_configs(metas))
+        return hub_card(data, _synthetic_card(body, cfg))
+    data = card_data(license=LICENSE_ID, pretty_name=f"mer training shards: LAFAN1 robot motion ({robots})", tags=LAFAN1_TAGS,
+                     configs=_configs(metas))
+    return hub_card(data, body)
 
 
 def _synthetic_card(text: str, cfg: dict) -> str:
-    """The card of a synthetic build: the LAFAN1 card's layout with its own title, provenance and licence."""
+    """The body of a synthetic build's card: the LAFAN1 card's layout with its own title, provenance and licence."""
     lafan1_provenance = text[text.index("Source: the LAFAN1") : text.index("Source files:") + len("Source files:")]
     lafan1_licence = text[text.index("CC BY-NC-ND 4.0 (") : text.index("## Loading")]
     return (
-        text.replace(f"license: {LICENSE_ID}", f"license: {SYNTHETIC_LICENSE_ID}")
-        .replace("tags: [robotics, motion-retargeting, humanoid, lafan1, mer]", "tags: [robotics, motion-retargeting, humanoid, synthetic, mer]")
-        .replace("mer training shards: LAFAN1 robot motion", "mer training shards: synthetic robot motion")
+        text.replace("mer training shards: LAFAN1 robot motion", "mer training shards: synthetic robot motion")
         .replace(
             lafan1_provenance,
             f"Source: synthetic motion generated by mer (`mer_data.synthesis`), {cfg['synthetic']} clip(s) of "
@@ -76,22 +112,9 @@ def _synthetic_card(text: str, cfg: dict) -> str:
 
 
 def render_lafan1_card(metas: list[tuple[Path, ShardMeta, str]], cfg: dict, input_label: str | None) -> str:
-    """The card body (LAFAN1 wording; :func:`_synthetic_card` adapts it)."""
+    """The card body, without the header (LAFAN1 wording; :func:`_synthetic_card` adapts it)."""
     fmt = metas[0][2]
     robots = sorted({m.robot for _, m, _ in metas})
-    ext = ".h5" if fmt == "hdf5" else ".mcap"
-    header = [
-        "---",
-        f"license: {LICENSE_ID}",
-        f'pretty_name: "mer training shards: LAFAN1 robot motion ({", ".join(robots)})"',
-        "tags: [robotics, motion-retargeting, humanoid, lafan1, mer]",
-    ]
-    if fmt == "hdf5":  # one config per robot and split: their rows differ in shape (nodes, samples per window)
-        header.append("configs:")
-        for r in robots:
-            for split in sorted({m.split for _, m, _ in metas if m.robot == r}, reverse=True):
-                header += [f"- config_name: {r}_{split}", "  data_files:", f"  - split: {split}", f'    path: "{r}-{split}-*{ext}"']
-    header.append("---")
 
     rows, sources = {}, []
     for p, m, _ in sorted(metas, key=lambda t: t[0].name):
@@ -172,12 +195,16 @@ def render_lafan1_card(metas: list[tuple[Path, ShardMeta, str]], cfg: dict, inpu
         "from mer_data.samples import collate",
         "from mer_data.shards import ShardDataset",
         "",
-        'train = ShardDataset("OUT", split="train")',
+        'train = ShardDataset("OUT", split="train")  # or "hf://datasets/OWNER/NAME[@REVISION]" once pushed',
         "loader = DataLoader(train, batch_size=16, shuffle=True, num_workers=4, collate_fn=collate)",
         "```",
         "",
+        f"`mer shards push OUT OWNER/NAME` uploads the shards with this card and `{META_FILE}`, the shards' metadata "
+        "as JSON (skeletons, target names, build configuration), which readers that ignore HDF5 attributes "
+        "(`datasets.load_dataset`) need to resolve `sample_target` and the skeletons.",
+        "",
     ]
-    return "\n".join(header + [""] + body)
+    return "\n".join(body)
 
 
 def write_card(out: str | Path, *, input_label: str | None = None, dest: str | Path | None = None) -> Path:

@@ -28,6 +28,7 @@ from ..errors import ShardFormatError
 from ..samples import TrainingSample
 from ..skeleton import KEYPOINTS, Skeleton
 from ..windows import window_features
+from .hub import resolve_hub_paths
 from .reader import PathsLike, ShardFile, find_shards, open_shard
 from .teacher import TeacherFile, teacher_features, teacher_path
 
@@ -51,7 +52,8 @@ class WindowRef:
 
 
 class ShardDataset(torch.utils.data.Dataset):
-    """Samples of the shards at ``paths`` (a shard file, a folder of shards, or a list of either).
+    """Samples of the shards at ``paths`` (a shard file, a folder of shards, ``hf://datasets/OWNER/NAME[@REV]``,
+    or a list of these; a Hub dataset is read through the Hub cache, see :mod:`.hub`).
 
     Args:
         split: keep the samples of ``"train"`` or ``"eval"`` windows only (default: all).
@@ -71,7 +73,7 @@ class ShardDataset(torch.utils.data.Dataset):
         augmented: bool = True,
         teacher: bool | str | Path | None = "auto",
     ) -> None:
-        self.paths = find_shards(paths)
+        self.paths = find_shards(resolve_hub_paths(paths))
         self.files: list[ShardFile] = [open_shard(p) for p in self.paths]
         self._check_compatible()
         self.teachers: list[TeacherFile | None] = [self._open_teacher(p, f, teacher) for p, f in zip(self.paths, self.files)]

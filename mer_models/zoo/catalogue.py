@@ -133,9 +133,10 @@ CATALOGUE: tuple[PlannedModel, ...] = (
 def planned_card(p: PlannedModel) -> ModelCard:
     """The ``unpublished`` card of a catalogue entry."""
     lic = DATASETS["lafan1"]
+    base_repo = next((b.repo_id for b in CATALOGUE if b.name == p.base), None) if p.base else None
     return ModelCard(
         name=p.name, status="unpublished", summary=p.summary, license=lic.license, repo_id=p.repo_id,
-        base_model=p.base, robots={"targets": list(p.targets), "references": list(p.references)},
+        base_model=p.base, base_repo_id=base_repo, robots={"targets": list(p.targets), "references": list(p.references)},
         training=dict(p.training), paper_metrics=p.paper_metrics(),
         checkpoint={"format": "mer-checkpoint", "config": "paper"},
         license_note=lic.note + " The planned Hub repository does not exist until the weights are published.",

@@ -43,6 +43,7 @@ class DatasetLicence:
 
     license: str
     note: str
+    hub_id: str | None = None  # the dataset's Hub repository (the card's ``datasets:``), if it has one
 
 
 DATASETS: dict[str, DatasetLicence] = {
@@ -51,6 +52,7 @@ DATASETS: dict[str, DatasetLicence] = {
         "The weights are trained on LAFAN1 motion (Ubisoft La Forge) retargeted to robots, which is "
         "licensed CC BY-NC-ND 4.0: the weights are derived from non-commercial data. Use them for "
         "non-commercial research only, credit LAFAN1, and read the dataset's licence before any other use.",
+        "lvhaidong/LAFAN1_Retargeting_Dataset",
     ),
     "synthetic": DatasetLicence(
         "apache-2.0",

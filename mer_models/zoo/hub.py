@@ -11,9 +11,12 @@ cached at a pinned commit is likewise never re-fetched or re-validated over the 
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import logging
 import os
 from pathlib import Path
+from typing import Any, Iterator
 
 from mer_data.errors import ChecksumError, ModelNotAvailableError, ModelZooError
 
@@ -21,13 +24,40 @@ from .names import validate_filename, validate_repo_id, validate_revision
 
 log = logging.getLogger(__name__)
 
-__all__ = ["offline", "cache_dir", "endpoint", "cached_file", "fetch_file", "repo_cache_folder"]
+__all__ = ["offline", "cache_dir", "endpoint", "cached_file", "fetch_file", "repo_cache_folder", "settings"]
 
 _TRUE = {"1", "on", "yes", "true"}
+#: per-call settings of :func:`settings` (``from_pretrained(cache_dir=, local_files_only=, token=)``)
+_SETTINGS: contextvars.ContextVar[dict[str, Any]] = contextvars.ContextVar("mer_hub_settings", default={})
+
+
+@contextlib.contextmanager
+def settings(*, cache_dir: str | Path | None = None, local_files_only: bool = False, token: str | None = None) -> Iterator[None]:
+    """Within the block: another Hub cache folder, cache-only look-ups (``local_files_only``: as
+    ``HF_HUB_OFFLINE``, no network call at all), and the token for downloads. Nested blocks add up."""
+    new = dict(_SETTINGS.get())
+    if cache_dir is not None:
+        new["cache_dir"] = Path(cache_dir).expanduser()
+    if local_files_only:
+        new["local_files_only"] = True
+    if token is not None:
+        new["token"] = token
+    reset = _SETTINGS.set(new)
+    try:
+        yield
+    finally:
+        _SETTINGS.reset(reset)
+
+
+def _offline_reason() -> str:
+    return "local_files_only=True was given" if _SETTINGS.get().get("local_files_only") else "HF_HUB_OFFLINE is set"
 
 
 def offline() -> bool:
-    """``HF_HUB_OFFLINE`` (or ``TRANSFORMERS_OFFLINE``), from the environment now or as the client read it."""
+    """``local_files_only`` (:func:`settings`), or ``HF_HUB_OFFLINE`` (or ``TRANSFORMERS_OFFLINE``) from the
+    environment now or as the client read it."""
+    if _SETTINGS.get().get("local_files_only"):
+        return True
     if any((os.environ.get(v) or "").strip().lower() in _TRUE for v in ("HF_HUB_OFFLINE", "TRANSFORMERS_OFFLINE")):
         return True
     from huggingface_hub import constants
@@ -36,7 +66,10 @@ def offline() -> bool:
 
 
 def cache_dir() -> Path:
-    """The Hub cache folder the client uses (``HF_HUB_CACHE``, default ``~/.cache/huggingface/hub``)."""
+    """The Hub cache folder: :func:`settings`' ``cache_dir``, else the client's (``HF_HUB_CACHE``, default
+    ``~/.cache/huggingface/hub``)."""
+    if "cache_dir" in _SETTINGS.get():
+        return _SETTINGS.get()["cache_dir"]
     from huggingface_hub import constants
 
     return Path(constants.HF_HUB_CACHE).expanduser()
@@ -80,7 +113,7 @@ def fetch_file(repo_id: str, filename: str, revision: str, *, what: str) -> Path
     validate_revision(revision)
     if offline():
         raise ModelNotAvailableError(
-            f"{what}: {filename} is not in the Hub cache ({cache_dir()}) and HF_HUB_OFFLINE is set, so it cannot be downloaded",
+            f"{what}: {filename} is not in the Hub cache ({cache_dir()}) and {_offline_reason()}, so it cannot be downloaded",
             element=filename,
             fix=f"run `mer zoo download {what}` once while online (unset HF_HUB_OFFLINE), or point HF_HUB_CACHE at a "
             "cache that has it",
@@ -96,7 +129,8 @@ def fetch_file(repo_id: str, filename: str, revision: str, *, what: str) -> Path
 
     where = f"{repo_id}@{revision} on {endpoint()}"
     try:
-        path = hf_hub_download(repo_id, filename, revision=revision, cache_dir=str(cache_dir()), library_name="mer")
+        path = hf_hub_download(repo_id, filename, revision=revision, cache_dir=str(cache_dir()), library_name="mer",
+                               token=_SETTINGS.get().get("token"))
     except RepositoryNotFoundError:
         raise ModelZooError(f"{what}: the repository {repo_id} does not exist on {endpoint()} (or it is private)",
                             element=repo_id, fix="check the repo id; for a private repository set HF_TOKEN") from None

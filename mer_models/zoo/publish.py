@@ -33,7 +33,7 @@ from .render import render_card
 
 log = logging.getLogger(__name__)
 
-__all__ = ["PublishResult", "publish", "default_cards_dir"]
+__all__ = ["PublishResult", "publish", "upload_checkpoint", "default_cards_dir"]
 
 
 @dataclass(frozen=True)
@@ -76,9 +76,6 @@ def publish(
     registry: Registry | None = None,
 ) -> PublishResult:
     """Upload ``checkpoint_dir`` to ``repo_id`` and write the card ``<cards_dir>/<name>.md``."""
-    from huggingface_hub import HfApi
-    from huggingface_hub.errors import HfHubHTTPError
-
     validate_model_name(name)
     validate_repo_id(repo_id)
     reg = registry if registry is not None else Registry()
@@ -97,11 +94,40 @@ def publish(
                            element="data.base_model", fix=f"pass --base {recorded}")
     if recorded and base_card is None:
         base_card = reg.get(recorded).card
-    files = checkpoint_files(ckpt)
     old = _previous(name, folder, repo_id)
+    history = list(old.history) if old is not None else []
+    if old is not None and old.revision:
+        history.insert(0, PastRevision(old.revision, dict(old.files), old.published))
+    card, commit, card_commit = upload_checkpoint(ckpt, repo_id, name=name, base=base_card, license=license, summary=summary,
+                                                  private=private, history=history, step=meta.get("step", 0))
+    path = write_card(card, folder)
+    log.info("published %s as %s@%s", name, repo_id, commit)
+    return PublishResult(card, path, commit, card_commit)
+
+
+def upload_checkpoint(
+    ckpt: Path,
+    repo_id: str,
+    *,
+    name: str,
+    base: ModelCard | None = None,
+    license: str | None = None,
+    summary: str | None = None,
+    private: bool = False,
+    history: list[PastRevision] | None = None,
+    step: int = 0,
+    token: str | None = None,
+) -> tuple[ModelCard, str, str]:
+    """The two commits of a publication (module docstring): the weights, then the card pinning them.
+
+    Returns (card, weights commit, card commit). Nothing is written locally."""
+    from huggingface_hub import HfApi
+    from huggingface_hub.errors import HfHubHTTPError
+
+    files = checkpoint_files(ckpt)
     # Render once before uploading anything: a checkpoint that cannot be carded is refused up front.
-    card_from_checkpoint(ckpt, name=name, status="unpublished", base=base_card, license=license, summary=summary)
-    api = HfApi()
+    card_from_checkpoint(ckpt, name=name, status="unpublished", base=base, license=license, summary=summary)
+    api = HfApi(token=token, library_name="mer")
     try:
         api.create_repo(repo_id, repo_type="model", exist_ok=True, private=private)
         with tempfile.TemporaryDirectory(prefix="mer-publish-") as tmp:
@@ -109,13 +135,11 @@ def publish(
             for fname in PUBLISH_FILES:
                 shutil.copy2(ckpt / fname, stage / fname)
             info = api.upload_folder(folder_path=str(stage), repo_id=repo_id, repo_type="model",
-                                     commit_message=f"mer: weights of {name} (step {meta.get('step', 0)})")
+                                     commit_message=f"mer: weights of {name} (step {step})")
             commit = info.oid
-            history = list(old.history) if old is not None else []
-            if old is not None and old.revision and old.revision != commit:
-                history.insert(0, PastRevision(old.revision, dict(old.files), old.published))
+            past = [h for h in (history or []) if h.revision != commit]
             card = card_from_checkpoint(ckpt, name=name, status="published", repo_id=repo_id, revision=commit,
-                                        files=files, history=history, base=base_card, license=license, summary=summary,
+                                        files=files, history=past, base=base, license=license, summary=summary,
                                         published=_dt.date.today().isoformat())
             readme = stage / "README.md"
             readme.write_text(render_card(card), encoding="utf-8")
@@ -127,6 +151,4 @@ def publish(
                            fix="check HF_TOKEN (a token with write access) and the repo id") from None
     except (OSError, ValueError) as exc:
         raise PublishError(f"upload to {repo_id} failed: {exc}", element=repo_id, fix="check the network and retry") from None
-    path = write_card(card, folder)
-    log.info("published %s as %s@%s", name, repo_id, commit)
-    return PublishResult(card, path, commit, card_info.oid)
+    return card, commit, card_info.oid

@@ -1,5 +1,10 @@
 """Render a :class:`~.card.ModelCard` to its ``README.md`` text (YAML front matter + markdown body).
 
+The front matter is built and written by huggingface_hub's own card classes (``ModelCardData``,
+``ModelCard``), so it carries the Hub's keys in the Hub's layout: ``base_model`` (a repo id, for
+fine-tunes), ``datasets`` (Hub dataset ids of the training data), ``library_name: mer``,
+``license``, ``pipeline_tag: robotics``, ``tags``, then mer's own ``mer:`` block.
+
 The body comes from the shipped template ``mer_models/templates/model_card.md``; every section is
 computed from the card's metadata, so ``render_card(parse_card(text)) == text`` for every card mer
 wrote (tests check this for the whole catalogue: a hand edit shows up as a difference).
@@ -11,25 +16,14 @@ import string
 from importlib import resources
 from typing import Any, Mapping
 
-import yaml
-
 from .card import ModelCard
+from .fromckpt import DATASETS
 
-__all__ = ["render_card", "front_matter", "TAGS"]
+__all__ = ["render_card", "card_data", "front_matter", "TAGS", "PIPELINE_TAG", "LIBRARY_NAME"]
 
 TAGS = ["robotics", "motion-retargeting", "diffusion", "humanoid", "mer"]
-
-
-class _Dumper(yaml.SafeDumper):
-    """Safe YAML, with multi-line strings (commands) as literal ``|`` blocks."""
-
-
-def _str(dumper: yaml.SafeDumper, value: str):
-    style = "|" if "\n" in value else None
-    return dumper.represent_scalar("tag:yaml.org,2002:str", value, style=style)
-
-
-_Dumper.add_representer(str, _str)
+PIPELINE_TAG = "robotics"  # the Hub's task for robot policies and motion models (as LeRobot's cards)
+LIBRARY_NAME = "mer"
 
 
 def _template() -> string.Template:
@@ -37,13 +31,30 @@ def _template() -> string.Template:
     return string.Template(text)
 
 
+def hub_datasets(card: ModelCard) -> list[str]:
+    """Hub dataset ids of the card's training data (empty for data that is not on the Hub)."""
+    known = DATASETS.get(str(card.training.get("dataset")))
+    return [known.hub_id] if known is not None and known.hub_id else []
+
+
+def card_data(card: ModelCard):
+    """The card's metadata as huggingface_hub's ``ModelCardData`` (Hub keys + the ``mer:`` block)."""
+    from huggingface_hub import ModelCardData
+
+    return ModelCardData(
+        base_model=card.base_repo_id or None,  # the Hub's convention: the base's repo id, top level
+        datasets=hub_datasets(card) or None,
+        library_name=LIBRARY_NAME,
+        license=card.license,
+        pipeline_tag=PIPELINE_TAG,
+        tags=list(TAGS),
+        mer=card.to_meta(),
+    )
+
+
 def front_matter(card: ModelCard) -> dict[str, Any]:
-    """The YAML mapping: Hub keys first, then the ``mer:`` block."""
-    top: dict[str, Any] = {"license": card.license, "library_name": "mer", "tags": list(TAGS)}
-    if card.base_repo_id:
-        top["base_model"] = card.base_repo_id  # the Hub's convention: a repo id
-    top["mer"] = card.to_meta()
-    return top
+    """The YAML mapping: Hub keys first, then the ``mer:`` block (``None`` values left out)."""
+    return card_data(card).to_dict()
 
 
 def _num(v: Any) -> str:
@@ -112,7 +123,9 @@ def _usage(card: ModelCard) -> str:
     if card.status == "published":
         lines.append(f"mer zoo download {card.name}")
     lines += [f"mer zoo info {card.name}", "```", "", "```python", "from mer_models import zoo", "",
-              f'ckpt = zoo.load("{card.name}")  # model built from config.json, weights loaded strictly', "```"]
+              f'ckpt = zoo.load("{card.name}")  # model built from config.json, weights loaded strictly', "",
+              "from mer_models import RetargetModel", "",
+              f'model = RetargetModel.from_pretrained("{card.name}")  # the same, as an nn.Module', "```"]
     return "\n".join(lines)
 
 
@@ -158,7 +171,8 @@ def _metrics(card: ModelCard) -> str:
 
 def render_card(card: ModelCard) -> str:
     """The card's full text: ``---`` YAML ``---`` then the template filled from the metadata."""
-    meta = yaml.dump(front_matter(card), Dumper=_Dumper, sort_keys=False, allow_unicode=True, width=100, default_flow_style=False)
+    from huggingface_hub import ModelCard as HubModelCard
+
     body = _template().substitute(
         title=card.name,
         banner=_banner(card),
@@ -171,4 +185,5 @@ def render_card(card: ModelCard) -> str:
         licence=_licence(card),
         reproduce=f"```bash\n{card.reproduce}\n```" if card.reproduce else "Not recorded.",
     )
-    return f"---\n{meta}---\n{body}"
+    hub_card = HubModelCard(f"---\n{card_data(card).to_yaml()}\n---\n{body}")
+    return str(hub_card)  # huggingface_hub writes the front matter (as ``ModelCard.save`` / ``push_to_hub`` do)
