@@ -7,7 +7,8 @@
    once more as an MCAP file to look at in Foxglove;
 3. a new robot registered from its URDF (a small humanoid generated in code,
    :mod:`mer_data.example_robot`), as ``mer robots register`` does;
-4. the default model loaded by name from the zoo (bundled with the package: no network);
+4. the default model, ``mer-base``, loaded by name from the zoo (bundled with the package: no network;
+   trained on synthetic motion only, every built-in robot as source and as target);
 5. the synthetic G1 walk retargeted to every built-in robot and to the new one (zero-shot: the
    model never saw it), written as CSVs, one MCAP, one PNG and one GIF (the scaled reference and
    the retarget side by side), with the paper's metrics per robot.
@@ -36,7 +37,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--source", default="g1", help="reference robot (default g1)")
     p.add_argument("--out", metavar="DIR", help="where to write the demo's files (default: a new temporary folder)")
     p.add_argument("--workers", type=int, default=1, help="worker processes for the shard build (default 1)")
-    p.add_argument("--model", default=None, help="zoo name, folder or ORG/NAME (default: the bundled mer-tiny-synthetic)")
+    p.add_argument("--model", default=None, help="zoo name, folder or ORG/NAME (default: the bundled mer-base)")
     p.add_argument("--show", default="h1", help="the robot whose result is also written as MCAP, PNG and GIF (default h1)")
     p.add_argument("--steps", type=int, default=None, help="sampler steps (default: the model's)")
     p.set_defaults(func=cmd_demo)
@@ -142,7 +143,9 @@ def retarget_walk(args, out: Path, builtins: list[str]) -> None:
     if unseen:
         print(f"zero-shot (as `mer retarget --allow-unseen`): {', '.join(unseen)}: the model never saw "
               f"{'this robot' if len(unseen) == 1 else 'these robots'}; `mer finetune --base {name} --robot {unseen[-1]} ...` adapts it")
-    print("metrics against the reference scaled to each robot (docs/model.md); the model is a demo model trained on synthetic motion")
+    print("metrics against the reference scaled to each robot (docs/model.md)"
+          + (f"; {name} is trained on synthetic motion only (its card, with its evaluation: `mer zoo info {name}`)"
+             if name == DEFAULT_MODEL else ""))
     for r in results:
         if r.robot == args.show:
             print(f"\nMCAP (Foxglove: /tf, /skeleton, /reference): {r.outputs['mcap']}\nPNG: {r.outputs['png']}")

@@ -10,7 +10,7 @@ weights load strictly. So ``from_pretrained`` reads exactly what ``mer`` writes 
 :class:`~mer_data.errors.CheckpointError` naming the missing / unexpected keys; weights are never
 silently initialised.
 
-``from_pretrained(spec)`` takes a zoo name (``mer-tiny-synthetic``, bundled), a local checkpoint
+``from_pretrained(spec)`` takes a zoo name (``mer-base``, bundled), a local checkpoint
 folder or a Hub repo id ``ORG/NAME`` (``revision=`` a branch, tag or commit); ``local_files_only``
 looks in the Hub cache only (no network call at all), ``cache_dir`` replaces ``HF_HUB_CACHE``.
 

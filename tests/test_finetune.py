@@ -69,10 +69,10 @@ def test_finetune_the_bundled_model_to_a_registered_robot_end_to_end(tmp_path, c
     assert code == 1 and "never trained with" in err and f"mer finetune --robot {robot}" in err
 
     # its card names the base, from the checkpoint's own metadata
-    ft_card = card_from_checkpoint(out, name="mer-tiny-synthetic-demo-humanoid", status="unpublished")
+    ft_card = card_from_checkpoint(out, name=f"{zoo.DEFAULT_MODEL}-demo-humanoid", status="unpublished")
     text = render_card(ft_card)
     assert ft_card.base_model == zoo.DEFAULT_MODEL and robot in ft_card.targets
-    assert f"Fine-tuned from `{zoo.DEFAULT_MODEL}`" in text and "base_model: mer-tiny-synthetic" in text
+    assert f"Fine-tuned from `{zoo.DEFAULT_MODEL}`" in text and f"base_model: {zoo.DEFAULT_MODEL}" in text
     assert ft_card.license == "apache-2.0"  # synthetic base, synthetic data
 
 
@@ -116,7 +116,7 @@ def test_finetune_from_shards(tmp_path, capsys, robot):
 
 @pytest.mark.parametrize("argv, message", [
     (["--base", zoo.DEFAULT_MODEL, "--robot", "nosuch"], "unknown robot 'nosuch'"),
-    (["--base", "mer-base", "--robot", "g1"], "not yet published"),
+    (["--base", "mer-paper", "--robot", "g1"], "not yet published"),
     (["--base", "no-such-model", "--robot", "g1"], "known models:"),
     (["--base", "./missing/folder", "--robot", "g1"], "no checkpoint folder"),
 ])
@@ -129,7 +129,7 @@ def test_refusals_are_clear_and_write_nothing(tmp_path, capsys, argv, message):
 def test_a_finetune_of_lafan1_weights_stays_non_commercial(tmp_path):
     ck = make_checkpoint(tmp_path / "ck", dataset="synthetic", targets=("g1", "h1", "talos"))
     meta = json.loads((ck / "config.json").read_text())
-    meta["data"] = {"synthetic": 8, "base_model": "mer-base", "base_data": {"shards": ["shards/lafan1"], "dataset": "lafan1"}}
+    meta["data"] = {"synthetic": 8, "base_model": "mer-paper", "base_data": {"shards": ["shards/lafan1"], "dataset": "lafan1"}}
     (ck / "config.json").write_text(json.dumps(meta))
     card = card_from_checkpoint(ck, name="my-talos", status="unpublished")
-    assert card.license == "cc-by-nc-nd-4.0" and card.base_model == "mer-base"
+    assert card.license == "cc-by-nc-nd-4.0" and card.base_model == "mer-paper"

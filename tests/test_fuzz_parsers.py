@@ -33,11 +33,12 @@ from mer_data.skeleton_builder import build_skeleton
 from mer_data.synthetic import walking_motion
 from mer_data.urdf import parse_urdf_bytes
 from mer_models.checkpoint import load_checkpoint
+from mer_models.zoo import DEFAULT_MODEL
 
 EXAMPLES = int(os.environ.get("MER_FUZZ_EXAMPLES", "0"))
 TIME_BOUND_S = 5.0  # per input (the slowest seen is ~0.1 s)
 MEMORY_BOUND = 256 * 2**20  # Python + numpy allocations per input [bytes]
-BUNDLED = Path(mer_models.__file__).parent / "bundled" / "mer-tiny-synthetic"
+BUNDLED = Path(mer_models.__file__).parent / "bundled" / DEFAULT_MODEL  # the bundled default model (mer-base)
 
 
 def fuzz_settings(n: int):

@@ -19,10 +19,11 @@ from mer_data.registry import get_skeleton, load_robot
 from mer_models.cli import main
 from mer_models.config import ModelConfig
 from mer_models.writers import TargetMotion, write_csv, write_mcap, write_npz
+from mer_models.zoo import DEFAULT_MODEL
 
 from model_helpers import synthetic_csv
 
-BUNDLED = Path(mer_models.__file__).parent / "bundled" / "mer-tiny-synthetic"
+BUNDLED = Path(mer_models.__file__).parent / "bundled" / DEFAULT_MODEL  # the bundled default model (mer-base)
 
 
 def run(capsys, *argv):

@@ -79,7 +79,8 @@ def test_demo(tmp_path, capsys):
     assert len(list((tmp_path / "demo" / "mcap").glob("*.mcap"))) == 3
     # the walk goes on: a robot registered from a URDF, the default model by name, every robot retargeted
     assert "register a robot from its URDF" in out and "registered 'mer_demo_humanoid'" in out
-    assert "model 'mer-tiny-synthetic': bundled (every file checked against the sha256 of its card)" in out
+    assert "model 'mer-base': bundled (every file checked against the sha256 of its card)" in out
+    assert "mer-base is trained on synthetic motion only" in out
     robots = ["g1", "h1", "h1_2", "atlas", "oli", "tron1", "talos", "valkyrie", "mer_demo_humanoid"]
     rows = {w[0]: line for line in out.splitlines() if len(w := line.split()) > 7 and w[0] in robots and w[1] in ("yes", "no:")}
     assert set(robots) <= set(rows), out

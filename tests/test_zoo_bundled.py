@@ -1,12 +1,16 @@
-"""The bundled default model: present, verified, rendered from its own metadata, loads offline, retargets."""
+"""The bundled default model (mer-base): present, verified, rendered from its own metadata, trained
+for every built-in robot as source and target, loads offline and retargets with no --model."""
 
 from __future__ import annotations
 
+import importlib.util
 import json
+import sys
 
 import numpy as np
+import pytest
 
-from mer_data.registry import get_skeleton
+from mer_data.registry import BUILTIN_ROBOTS, get_skeleton
 from mer_models import zoo
 from mer_models.cli import main
 from mer_models.zoo.fromckpt import card_from_checkpoint
@@ -14,26 +18,49 @@ from mer_models.zoo.registry import Registry, bundled_dir
 
 from conftest import REPO
 from model_helpers import synthetic_csv
+from zoo_helpers import make_checkpoint
 
-DEMO_TARGETS = {"g1", "h1", "h1_2", "atlas", "oli", "tron1"}
+
+def _train_base():
+    """tools/train_base.py as a module (the maintainer script that bundles mer-base)."""
+    spec = importlib.util.spec_from_file_location("train_base", REPO / "tools" / "train_base.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
 
 
-def test_the_default_model_is_bundled_small_and_described_by_its_card():
+def test_the_default_model_is_mer_base_bundled_and_described_by_its_card():
     name = zoo.DEFAULT_MODEL
+    assert name == "mer-base"
     entry = zoo.model_info(name)
     card = entry.card
     assert entry.source == "built-in" and card.status == "bundled" and zoo.where(entry) == "bundled"
     folder = bundled_dir() / name
     assert sorted(p.name for p in folder.iterdir()) == ["config.json", "model.safetensors"]  # no optimiser state
-    assert (folder / "model.safetensors").stat().st_size < 2_000_000
-    # trained on synthetic motion only: a permissive licence, said plainly; and evaluated
-    assert card.license == "apache-2.0" and card.training["dataset"] == "synthetic"
-    assert "not for real use" in card.summary and "synthetic" in card.summary
-    assert DEMO_TARGETS <= set(card.targets) and card.robots["references"] == ["g1"]
-    ev = card.metrics["evaluation (mer evaluate)"]
-    for table in ("model, in-domain", "model, out-of-domain", "optimisation baseline, out-of-domain"):
-        assert DEMO_TARGETS <= set(ev[table]), table
-    assert "tools/train_bundled.py" in card.reproduce and "mer train --config tiny --synthetic" in card.reproduce
+    assert (folder / "model.safetensors").stat().st_size < 4_000_000  # the base preset in float32: ~3 MB
+    # trained on synthetic motion only: a permissive licence, said plainly
+    assert card.license == "apache-2.0" and card.training["dataset"] == "synthetic" and card.checkpoint["config"] == "base"
+    assert "synthetic motion" in card.summary and "default" in card.summary and "teacher is the optimiser" in card.summary
+    assert "lafan" not in json.dumps(card.training).lower()
+    assert "tools/train_base.py" in card.reproduce and "--bundle-only" in card.reproduce
+    # evaluated on LAFAN1 (every built-in robot as target, G1 and H1 as sources), or said not to be
+    ev = card.metrics.get("evaluation (mer evaluate)")
+    if ev is None:
+        assert "has not been evaluated" in card.summary
+    else:
+        assert "is in this card's metrics" in card.summary
+        for src in ("g1", "h1"):
+            assert set(ev[f"source {src}, model alone (4 Heun steps, 7 evaluations)"]) == set(BUILTIN_ROBOTS)
+
+
+def test_the_bundled_checkpoint_covers_exactly_every_builtin_robot_as_source_and_target():
+    """8 x 8 retargets would take minutes: the recorded robots (names and skeleton fingerprints) are checked instead."""
+    meta = json.loads((bundled_dir() / zoo.DEFAULT_MODEL / "config.json").read_text())
+    expected = {r: get_skeleton(r).fingerprint for r in BUILTIN_ROBOTS}
+    assert meta["robots"]["targets"] == expected and meta["robots"]["references"] == expected
+    card = zoo.model_info(zoo.DEFAULT_MODEL).card
+    assert card.targets == sorted(BUILTIN_ROBOTS) and card.robots["references"] == sorted(BUILTIN_ROBOTS)
+    assert meta["run"]["name"] == "base" and meta["run"]["sampler"]["steps"] == 4
 
 
 def test_the_bundled_card_is_rendered_from_the_checkpoint_metadata():
@@ -45,7 +72,7 @@ def test_the_bundled_card_is_rendered_from_the_checkpoint_metadata():
     assert (again.robots, again.training, again.metrics, again.checkpoint) == (card.robots, card.training, card.metrics, card.checkpoint)
     meta = json.loads((folder / "config.json").read_text())
     assert card.checkpoint["step"] == meta["step"] and card.training["steps"] == meta["step"]
-    assert f"trained for {meta['step']} steps" in card.summary
+    assert f"trained for {meta['step']} steps" in card.summary and f"this checkpoint: step {meta['step']}" in card.reproduce
 
 
 def test_load_by_name_offline_with_no_hub_cache(monkeypatch, tmp_path):
@@ -54,7 +81,7 @@ def test_load_by_name_offline_with_no_hub_cache(monkeypatch, tmp_path):
     res = zoo.resolve(zoo.DEFAULT_MODEL)
     assert res.source == "bundled" and res.verified == "card" and res.folder == bundled_dir() / zoo.DEFAULT_MODEL
     ckpt = zoo.load(zoo.DEFAULT_MODEL)
-    assert DEMO_TARGETS <= set(ckpt.targets) and ckpt.references == ["g1"]
+    assert set(ckpt.targets) == set(BUILTIN_ROBOTS) and set(ckpt.references) == set(BUILTIN_ROBOTS)
     assert not ckpt.model.training
     assert not (tmp_path / "empty-cache").exists()
 
@@ -65,8 +92,6 @@ def test_a_source_checkout_and_an_install_read_the_same_card():
     assert src.files == pkg.files and src.metrics == pkg.metrics
 
 
-
-
 def test_retarget_by_name_and_by_default_offline(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("HF_HUB_OFFLINE", "1")
     src = synthetic_csv(tmp_path / "walk.csv", frames=45, seed=5)
@@ -74,18 +99,72 @@ def test_retarget_by_name_and_by_default_offline(tmp_path, capsys, monkeypatch):
                  "-o", str(tmp_path / "a.csv"), "--steps", "2"]) == 0  # fmt: skip
     assert main(["retarget", str(src), "--source", "g1", "--target", "tron1", "-o", str(tmp_path / "b.csv"), "--steps", "2"]) == 0
     err = capsys.readouterr().err
-    assert f"using the bundled demo model {zoo.DEFAULT_MODEL!r}" in err
+    assert f"no --model: using the bundled model {zoo.DEFAULT_MODEL!r}" in err
     a, b = np.loadtxt(tmp_path / "a.csv", delimiter=","), np.loadtxt(tmp_path / "b.csv", delimiter=",")
     assert a.shape == (45, 7 + get_skeleton("tron1").num_dof) and np.array_equal(a, b)  # same model, same seed
 
 
+@pytest.mark.parametrize("source, target", [("h1", "valkyrie"), ("h1_2", "tron1"), ("g1", "talos")])
+def test_retarget_with_no_model_offline_between_builtin_robots(tmp_path, capsys, monkeypatch, source, target):
+    """No --model and no --allow-unseen: the default model saw every built-in robot (tron1: a biped
+    with point feet). The command line reads CSVs of the robots with a LAFAN1 column layout (g1, h1,
+    h1_2); the other sources are checked through the library below."""
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
+    monkeypatch.setenv("HF_HUB_CACHE", str(tmp_path / "empty-cache"))
+    src = synthetic_csv(tmp_path / f"{source}.csv", source, frames=40, seed=2)
+    out = tmp_path / f"{target}.csv"
+    assert main(["retarget", str(src), "--source", source, "--target", target, "-o", str(out)]) == 0, capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert f"using the bundled model {zoo.DEFAULT_MODEL!r}" in err and "never trained" not in err
+    a = np.loadtxt(out, delimiter=",")
+    assert a.shape == (40, 7 + get_skeleton(target).num_dof) and np.isfinite(a).all()
+    assert not (tmp_path / "empty-cache").exists()
+
+
+@pytest.mark.parametrize("source, target", [("talos", "tron1"), ("tron1", "atlas"), ("valkyrie", "h1_2"), ("oli", "g1")])
+def test_the_default_model_retargets_from_robots_without_a_csv_layout(monkeypatch, source, target):
+    """Sources the command line cannot read from a CSV: their motion as features, through the library."""
+    from mer_models.retarget import retarget_features, source_features
+    from mer_models.synthetic import synthetic_motion
+
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
+    ckpt = zoo.load(zoo.DEFAULT_MODEL)
+    skel = get_skeleton(source)
+    m = synthetic_motion(skel, 40, seed=4)
+    feats = source_features(m["base_pos"], m["base_quat"], m["q"], skel, 30.0)
+    res = retarget_features(feats, source, target, checkpoint=ckpt)  # no allow_unseen: both robots are the model's
+    assert res.method == "diffusion" and res.motion.q.shape == (40, get_skeleton(target).num_nodes)
+    assert np.isfinite(res.motion.q).all() and np.isfinite(res.motion.base_pos).all()
+
+
 def test_the_library_still_needs_a_model_for_diffusion(tmp_path):
     """Only the command line falls back to the bundled model (and says so); the library never picks one."""
-    import pytest
-
     from mer_data.errors import MerError
     from mer_models.retarget import retarget_file
 
     with pytest.raises(MerError, match="--method optimize"):
         retarget_file(synthetic_csv(tmp_path / "w.csv", frames=10, seed=5), "g1", "h1", out_csv=tmp_path / "o.csv")
     assert not (tmp_path / "o.csv").exists()
+
+
+def test_bundling_refuses_a_checkpoint_that_is_not_for_every_builtin_robot(tmp_path):
+    """tools/train_base.py bundles only a checkpoint with all eight robots as targets and references,
+    and touches nothing in the package when it refuses."""
+    from mer_data.errors import PublishError
+
+    tb = _train_base()
+    before = {p.name: p.read_bytes() for p in (bundled_dir() / zoo.DEFAULT_MODEL).iterdir()}
+    with pytest.raises(PublishError, match="not a mer-base checkpoint"):
+        tb.bundle_step(make_checkpoint(tmp_path / "ck", targets=("g1", "h1"), references=("g1",)), None)
+    with pytest.raises(PublishError, match="no checkpoint"):
+        tb.bundle_step(tmp_path / "missing", None)
+    assert {p.name: p.read_bytes() for p in (bundled_dir() / zoo.DEFAULT_MODEL).iterdir()} == before
+    assert not any(p.name.startswith(".tmp-") for p in bundled_dir().iterdir())
+
+
+def test_bundle_only_refuses_the_evaluation_of_another_run(tmp_path, monkeypatch):
+    tb = _train_base()
+    (tmp_path / tb.EVALUATION_FILE).write_text(json.dumps({"g1": {"model": str(tmp_path / "other-run"), "rows": []}}))
+    monkeypatch.setattr(sys, "argv", ["train_base.py", "--work", str(tmp_path), "--bundle-only", "--run", str(tmp_path / "run")])
+    with pytest.raises(SystemExit, match="not .*run: bundle that run"):
+        tb.main()

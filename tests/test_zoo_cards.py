@@ -69,7 +69,7 @@ def test_packaged_cards_equal_the_repository_cards():
 
 def test_catalogue_cards_say_the_weights_are_not_published_and_are_non_commercial():
     names = {p.name for p in CATALOGUE}
-    assert {"mer-base", "mer-base-talos", "mer-base-valkyrie"} <= names
+    assert {"mer-paper", "mer-paper-talos", "mer-paper-valkyrie"} <= names
     for p in CATALOGUE:
         card = read_card(REPO / "cards" / "models" / f"{p.name}.md")
         text = card.path.read_text()
@@ -77,12 +77,12 @@ def test_catalogue_cards_say_the_weights_are_not_published_and_are_non_commercia
             assert "Weights not yet published" in text and card.revision is None and not card.files
         assert card.license == "cc-by-nc-nd-4.0" and "non-commercial" in card.license_note
         assert card.training["dataset"] == "lafan1"
-    base = read_card(REPO / "cards" / "models" / "mer-base.md")
+    base = read_card(REPO / "cards" / "models" / "mer-paper.md")
     assert base.targets == ["g1", "h1", "atlas", "oli", "tron1"] and base.robots["references"] == ["g1", "h1"]
     for robot in ("talos", "valkyrie"):
-        ft = read_card(REPO / "cards" / "models" / f"mer-base-{robot}.md")
-        assert ft.base_model == "mer-base" and robot in ft.targets and robot not in base.targets
-        assert f"mer finetune --base mer-base --robot {robot}" in ft.reproduce
+        ft = read_card(REPO / "cards" / "models" / f"mer-paper-{robot}.md")
+        assert ft.base_model == "mer-paper" and robot in ft.targets and robot not in base.targets
+        assert f"mer finetune --base mer-paper --robot {robot}" in ft.reproduce
 
 
 @pytest.mark.parametrize("edit, message", [
@@ -112,7 +112,7 @@ def test_a_card_cannot_smuggle_python_objects():
         parse_card(text)
 
 
-@pytest.mark.parametrize("name", ["mer-base", "a", "x1.2_b-c", "m" * 64])
+@pytest.mark.parametrize("name", ["mer-paper", "a", "x1.2_b-c", "m" * 64])
 def test_valid_names(name):
     assert validate_model_name(name) == name
 
@@ -200,9 +200,9 @@ def test_card_metadata_parses_with_huggingface_hubs_own_parser_and_passes_the_hu
         assert hub_card.data.pipeline_tag == "robotics"
         assert str(hub_card) == path.read_text(encoding="utf-8")  # the client rewrites it unchanged
     for robot in ("talos", "valkyrie"):  # fine-tunes name their base the Hub's way: a top-level repo id
-        meta = metadata_load(REPO / "cards" / "models" / f"mer-base-{robot}.md")
-        assert meta["base_model"] == "mer-robotics/mer-base" and meta["mer"]["base_model"] == "mer-base"
-    assert "base_model" not in metadata_load(REPO / "cards" / "models" / "mer-base.md")
+        meta = metadata_load(REPO / "cards" / "models" / f"mer-paper-{robot}.md")
+        assert meta["base_model"] == "mer-robotics/mer-paper" and meta["mer"]["base_model"] == "mer-paper"
+    assert "base_model" not in metadata_load(REPO / "cards" / "models" / "mer-paper.md")
 
 
 def test_the_hub_checks_can_fail():
@@ -212,7 +212,7 @@ def test_the_hub_checks_can_fail():
     assert validate_metadata(meta, "model") == []
     assert validate_metadata({**meta, "license": "cc-by-nc-nd"}, "model")
     assert validate_metadata({**meta, "pipeline_tag": "retargeting"}, "model")
-    assert validate_metadata({**meta, "base_model": "mer-base"}, "model")  # a zoo name is not a repo id
+    assert validate_metadata({**meta, "base_model": "mer-paper"}, "model")  # a zoo name is not a repo id
     assert validate_metadata({**meta, "tags": "robotics"}, "model")
 
 

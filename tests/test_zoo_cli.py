@@ -49,25 +49,25 @@ def test_publish_download_list_from_the_command_line(tmp_path, mer_home):
         assert r.returncode == 0, r.stderr
         rows = {row["name"]: row for row in json.loads(r.stdout)}
         assert rows["cli-model"]["where"] == "cached" and rows["cli-model"]["revision"] == card.revision
-        assert rows["cli-model"]["size"] == card.size and rows["mer-base"]["where"] == "unpublished"
+        assert rows["cli-model"]["size"] == card.size and rows["mer-paper"]["where"] == "unpublished"
         assert len(hub.requests) == n
 
 
 def test_errors_exit_non_zero_with_what_to_do(capsys):
     assert main(["zoo", "download", "no-such-model"]) == 1
     err = capsys.readouterr().err
-    assert "unknown model 'no-such-model'" in err and "mer-base" in err and "fix:" in err
+    assert "unknown model 'no-such-model'" in err and "mer-paper" in err and "fix:" in err
     assert main(["zoo", "download", "org/model", "--revision", "../../outside"]) == 1
     assert "invalid revision" in capsys.readouterr().err
-    assert main(["zoo", "download", "mer-base-talos"]) == 1
+    assert main(["zoo", "download", "mer-paper-talos"]) == 1
     err = capsys.readouterr().err
-    assert "not yet published" in err and "mer finetune --base mer-base --robot talos" in err
+    assert "not yet published" in err and "mer finetune --base mer-paper --robot talos" in err
 
 
 def test_info_shows_the_card(capsys):
-    assert main(["zoo", "info", "mer-base"]) == 0
+    assert main(["zoo", "info", "mer-paper"]) == 0
     out = capsys.readouterr().out
     assert "unpublished" in out and "cc-by-nc-nd-4.0" in out and "mer train --config paper" in out
-    assert main(["zoo", "info", "mer-base-talos", "--json"]) == 0
+    assert main(["zoo", "info", "mer-paper-talos", "--json"]) == 0
     meta = json.loads(capsys.readouterr().out)
-    assert meta["base_model"] == "mer-base" and meta["where"] == "unpublished" and meta["license"] == "cc-by-nc-nd-4.0"
+    assert meta["base_model"] == "mer-paper" and meta["where"] == "unpublished" and meta["license"] == "cc-by-nc-nd-4.0"

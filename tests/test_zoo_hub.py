@@ -100,7 +100,7 @@ def test_download_by_name_round_trips_bit_for_bit_into_the_hub_cache(published):
     after = {r["name"]: r for r in published["out"][5]["result"]}
     assert before[NAME] == {"name": NAME, "where": "remote", "source": "user"}
     assert after[NAME] == {"name": NAME, "where": "cached", "source": "user"}
-    assert after["mer-base"]["where"] == "unpublished" and after["mer-base"]["source"] == "built-in"
+    assert after["mer-paper"]["where"] == "unpublished" and after["mer-paper"]["source"] == "built-in"
 
 
 def test_pinned_revision_is_respected(published, tmp_path):
@@ -159,14 +159,14 @@ def test_offline_and_not_cached_says_how_to_get_it(published, tmp_path):
     out = run_worker([
         {"op": "download", "spec": NAME},
         {"op": "download", "spec": "no-such-model"},
-        {"op": "download", "spec": "mer-base"},
+        {"op": "download", "spec": "mer-paper"},
         {"op": "download", "spec": NAME, "revision": "../../../etc"},
         {"op": "download", "spec": REPO_ID},
     ], _fresh_env(published, tmp_path, HF_HUB_OFFLINE="1"))
     offline, unknown, unpublished, traversal, plain = out
     assert offline["error"] == "ModelNotAvailableError"
     assert "HF_HUB_OFFLINE" in offline["message"] and f"mer zoo download {NAME}" in offline["message"]
-    assert unknown["error"] == "UnknownModelError" and "mer-base" in unknown["message"] and NAME in unknown["message"]
+    assert unknown["error"] == "UnknownModelError" and "mer-paper" in unknown["message"] and NAME in unknown["message"]
     assert unpublished["error"] == "ModelNotAvailableError" and "not yet published" in unpublished["message"]
     assert "mer train" in unpublished["message"]
     assert traversal["error"] == "ModelZooError" and "invalid revision" in traversal["message"]

@@ -43,6 +43,12 @@ def test_the_wheel_ships_every_card_and_the_template(wheel):
     for folder in (REPO / "mer_models" / "bundled").glob("*/"):
         for f in folder.iterdir():
             assert f"mer_models/bundled/{folder.name}/{f.name}" in names
+    # the bundled weights are the default model's, and only those (the retired demo model no longer ships)
+    from mer_models.zoo import DEFAULT_MODEL
+
+    bundled = {n.split("/")[2] for n in names if n.startswith("mer_models/bundled/")}
+    assert bundled == {DEFAULT_MODEL} == {"mer-base"}
+    assert "mer_models/cards/mer-base.md" in names and not any("mer-tiny-synthetic" in n for n in names)
 
 
 def test_list_models_works_from_the_installed_wheel(wheel, tmp_path):
@@ -61,7 +67,9 @@ def test_list_models_works_from_the_installed_wheel(wheel, tmp_path):
 
 def test_the_installed_wheel_loads_and_retargets_with_the_default_model_offline(wheel, tmp_path):
     """A fresh install: the bundled weights are in the wheel, load by name with no network and no
-    Hub cache, and `mer retarget --model NAME` runs from the installed package (not the checkout)."""
+    Hub cache, and `mer retarget` with no --model (the default model) runs from the installed package
+    (not the checkout)."""
+    from mer_data.registry import BUILTIN_ROBOTS
     from mer_models.zoo import DEFAULT_MODEL
 
     names = set(zipfile.ZipFile(wheel).namelist())
@@ -77,15 +85,16 @@ def test_the_installed_wheel_loads_and_retargets_with_the_default_model_offline(
     assert proc.returncode == 0, proc.stderr
     init, folder, source, verified, targets = json.loads(proc.stdout)
     assert init.startswith(str(site)) and folder == str(site / "mer_models" / "bundled" / DEFAULT_MODEL)
-    assert (source, verified) == ("bundled", "card") and "h1" in targets
+    assert (source, verified) == ("bundled", "card") and sorted(targets) == sorted(BUILTIN_ROBOTS)
     make_csv = ("import sys, torch; from mer_data.registry import get_skeleton; from mer_data.rotations import quat_to_matrix;"
                 "from mer_models.synthetic import synthetic_motion; from mer_models.writers import TargetMotion, write_csv;"
                 "s = get_skeleton('g1'); m = synthetic_motion(s, 30, seed=1);"
                 "write_csv(sys.argv[1], TargetMotion(s, 30.0, m['q'], m['base_pos'], quat_to_matrix(torch.from_numpy(m['base_quat'])).numpy()))")
     subprocess.run([sys.executable, "-c", make_csv, str(tmp_path / "g1.csv")], env=env, check=True, cwd=str(tmp_path), timeout=120)
     proc = subprocess.run([sys.executable, "-m", "mer_models", "retarget", str(tmp_path / "g1.csv"), "--source", "g1", "--target", "h1",
-                           "--model", DEFAULT_MODEL, "-o", str(tmp_path / "h1.csv"), "--steps", "1"],
+                           "-o", str(tmp_path / "h1.csv"), "--steps", "1"],
                           env=env, capture_output=True, text=True, cwd=str(tmp_path), timeout=120)  # fmt: skip
     assert proc.returncode == 0, proc.stderr
+    assert f"no --model: using the bundled model {DEFAULT_MODEL!r}" in proc.stderr
     assert len((tmp_path / "h1.csv").read_text().splitlines()) == 30
     assert not (tmp_path / "no-cache").exists()

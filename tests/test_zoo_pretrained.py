@@ -36,7 +36,7 @@ def micro(tmp_path_factory):
 
 
 def test_from_pretrained_takes_a_zoo_name_and_a_local_folder(micro):
-    bundled = RetargetModel.from_pretrained("mer-tiny-synthetic")
+    bundled = RetargetModel.from_pretrained("mer-base")  # the bundled default model, by name
     assert bundled.pretrained_info.source == "bundled" and not bundled.training
     local = RetargetModel.from_pretrained(micro)
     assert local.pretrained_info.source == "local" and local.pretrained_info.step == 3

@@ -31,17 +31,17 @@ def test_unknown_name_lists_the_known_ones():
     with pytest.raises(UnknownModelError) as exc:
         zoo.resolve("mer-bsae")
     text = str(exc.value)
-    assert "unknown model 'mer-bsae'" in text and "mer-base, mer-base-talos, mer-base-valkyrie" in text
+    assert "unknown model 'mer-bsae'" in text and "mer-paper, mer-paper-talos, mer-paper-valkyrie" in text
     assert "mer zoo list" in text
 
 
 def test_the_catalogue_is_listed_and_unpublished_models_refuse_to_load():
     entries = {e.name: e for e in zoo.list_models()}
-    assert {"mer-base", "mer-base-talos", "mer-base-valkyrie"} <= set(entries)
-    assert zoo.where(entries["mer-base"]) == "unpublished"
+    assert {"mer-paper", "mer-paper-talos", "mer-paper-valkyrie"} <= set(entries)
+    assert zoo.where(entries["mer-paper"]) == "unpublished"
     with pytest.raises(ModelNotAvailableError, match="not yet published") as exc:
-        zoo.load("mer-base-valkyrie")
-    assert "mer finetune --base mer-base --robot valkyrie" in str(exc.value)
+        zoo.load("mer-paper-valkyrie")
+    assert "mer finetune --base mer-paper --robot valkyrie" in str(exc.value)
 
 
 def test_a_bundled_model_resolves_offline_and_is_verified(bundled_registry, monkeypatch):
@@ -65,10 +65,10 @@ def test_a_damaged_bundled_file_is_refused_but_never_deleted(bundled_registry):
 
 def test_a_user_card_cannot_shadow_a_builtin_name(tmp_path, caplog):
     reg = Registry(user=tmp_path / "user")
-    src = REPO / "cards" / "models" / "mer-base.md"
+    src = REPO / "cards" / "models" / "mer-paper.md"
     (tmp_path / "user").mkdir()
-    (tmp_path / "user" / "mer-base.md").write_text(src.read_text())
-    assert reg.get("mer-base").source == "built-in"
+    (tmp_path / "user" / "mer-paper.md").write_text(src.read_text())
+    assert reg.get("mer-paper").source == "built-in"
     assert "taken by a built-in model" in caplog.text
 
 
@@ -95,7 +95,7 @@ def test_a_local_folder_is_used_as_is(tmp_path):
 def test_publish_refuses_before_touching_the_network(tmp_path, monkeypatch):
     ck = make_checkpoint(tmp_path / "ck")
     with pytest.raises(PublishError, match="built-in model"):
-        zoo.publish(ck, name="mer-base", repo_id="lab/x", cards_dir=tmp_path / "cards")
+        zoo.publish(ck, name="mer-paper", repo_id="lab/x", cards_dir=tmp_path / "cards")
     with pytest.raises(PublishError, match="--license"):
         zoo.publish(make_checkpoint(tmp_path / "unk", dataset="studio mocap"), name="x", repo_id="lab/x",
                     cards_dir=tmp_path / "cards")

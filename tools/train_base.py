@@ -1,7 +1,9 @@
-"""Maintainer script: build, teach, train, evaluate and bundle ``mer-base`` (synthetic motion only).
+"""Maintainer script: build, teach, train, evaluate and bundle ``mer-base``, mer's default model
+(synthetic motion only; bundled in the package).
 
     PYTHONPATH=$PWD python tools/train_base.py --minutes 80           # all steps; resumes where it stopped
-    PYTHONPATH=$PWD python tools/train_base.py --skip-train           # evaluate and bundle runs/mer-base
+    PYTHONPATH=$PWD python tools/train_base.py --skip-train --lafan1 DIR   # evaluate, bundle and card runs/mer-base
+    PYTHONPATH=$PWD python tools/train_base.py --bundle-only --run DIR     # bundle and card a checkpoint as it is
 
 Steps (every one resumable; the same command continues a killed run):
 
@@ -17,7 +19,13 @@ Steps (every one resumable; the same command continues a killed run):
    model, the model + 5 optimiser iterations, and the optimiser on the same windows) when
    ``--lafan1`` is given; the tables go into the card.
 5. **bundle**: ``config.json`` (with the evaluation) and ``model.safetensors`` into
-   ``mer_models/bundled/mer-base/``; **card**: ``cards/models/mer-base.md`` from the checkpoint.
+   ``mer_models/bundled/mer-base/``; **card**: ``cards/models/mer-base.md`` and its packaged copy
+   ``mer_models/cards/mer-base.md``, rendered by :func:`mer_models.zoo.fromckpt.card_from_checkpoint`
+   from the bundled checkpoint's own metadata (status ``bundled``, licence Apache-2.0).
+
+``--bundle-only`` skips steps 1-4: it bundles the checkpoint in ``--run`` (default WORK/mer-base)
+with the evaluation of ``WORK/mer-base-evaluation.json`` when that file exists (the reports step 4
+wrote), and renders the card. Replacing the bundled model with a newer checkpoint is that command.
 """
 
 from __future__ import annotations
@@ -30,6 +38,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
@@ -39,6 +48,7 @@ ROBOTS = ("g1", "h1", "h1_2", "atlas", "oli", "tron1", "talos", "valkyrie")
 SOURCES = ("g1", "h1")
 BUILD = ["--synthetic", "8", "--synthetic-seconds", "20", "--robots", *ROBOTS, "--targets", *ROBOTS, "--augment", "1"]
 EVAL = {"split": "all", "max_windows": 32, "refine": 5}
+EVALUATION_FILE = f"{NAME}-evaluation.json"  # in WORK: the reports of the evaluate step (source -> report)
 
 
 def mer(*args: str) -> None:
@@ -100,17 +110,29 @@ def card_metrics(reports: dict) -> dict:
 
 
 def bundle_step(run_dir: Path, metrics: dict | None) -> Path:
+    """Copy ``config.json`` (training metrics + ``metrics`` as its evaluation) and the weights of
+    ``run_dir`` into ``mer_models/bundled/mer-base/``, replacing what is there atomically."""
+    from mer_data.errors import PublishError
+    from mer_models.zoo.fromckpt import read_checkpoint_meta
     from mer_models.zoo.registry import bundled_dir
 
+    read_checkpoint_meta(run_dir)  # a mer checkpoint with config.json and model.safetensors, or a clear error
+    meta = json.loads((run_dir / "config.json").read_text())
+    have = {k: sorted((meta.get("robots") or {}).get(k, {})) for k in ("targets", "references")}
+    if have != {"targets": sorted(ROBOTS), "references": sorted(ROBOTS)}:
+        raise PublishError(f"{run_dir} is not a mer-base checkpoint: its robots are {have}, mer-base needs every built-in "
+                           f"robot ({' '.join(ROBOTS)}) as target and as reference", path=run_dir / "config.json", element="robots")
     dest = bundled_dir() / NAME
     tmp = dest.parent / f".tmp-{NAME}"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
-    meta = json.loads((run_dir / "config.json").read_text())
     meta["metrics"] = {"train": meta.get("metrics", {}).get("train", {})}
     if metrics:
         meta["metrics"]["evaluation (mer evaluate)"] = metrics
-    meta["data"] = {k: v for k, v in meta.get("data", {}).items() if k != "shards"} | {"shards": f"tools/train_base.py: mer shards build {' '.join(BUILD)}"}
+    meta["data"] = {k: v for k, v in meta.get("data", {}).items() if k != "shards"} | {
+        "shards": f"tools/train_base.py: mer shards build {' '.join(BUILD)}",
+        "motion": "synthetic motion generated in code (mer_data.synthesis), no third-party motion data",
+    }
     (tmp / "config.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
     shutil.copy2(run_dir / "model.safetensors", tmp / "model.safetensors")
     for f in tmp.iterdir():
@@ -121,27 +143,88 @@ def bundle_step(run_dir: Path, metrics: dict | None) -> Path:
     return dest
 
 
+def reproduce_text(step: int) -> str:
+    robots = " ".join(ROBOTS)
+    return "\n".join([
+        "# the whole pipeline (shards, teacher, train, evaluate, bundle, card); the same command resumes a killed run:",
+        "python tools/train_base.py --minutes MINUTES --lafan1 LAFAN1_DIR",
+        f"# training stops at a chunk boundary once MINUTES are spent (this checkpoint: step {step}); its steps:",
+        f"mer shards build {' '.join(BUILD)} --out runs/{NAME}-shards",
+        f"mer shards solve runs/{NAME}-shards",
+        f"python tools/learning_curve.py --config base --shards runs/{NAME}-shards --out runs/{NAME} --bf16 --max-minutes MINUTES --chunk-steps 150",
+        *(f"mer evaluate --model runs/{NAME} --input LAFAN1_DIR --source {src} --targets {robots} --split {EVAL['split']} "
+          f"--max-windows {EVAL['max_windows']} --refine {EVAL['refine']} --methods model refine optimize" for src in SOURCES),
+        "# bundle and card a checkpoint (no training, no evaluation; reuses runs/" + EVALUATION_FILE + " if present):",
+        f"python tools/train_base.py --work runs --bundle-only --run runs/{NAME}",
+    ])  # fmt: skip
+
+
+def card_step(folder: Path, metrics: dict[str, Any] | None) -> Path:
+    """Render ``cards/models/mer-base.md`` and its packaged copy from the bundled checkpoint ``folder``."""
+    from mer_models.zoo.fromckpt import DATASETS, card_from_checkpoint
+    from mer_models.zoo.registry import source_cards_dir, write_card
+
+    step = int(json.loads((folder / "config.json").read_text())["step"])
+    evaluated = ("Its accuracy on LAFAN1 motion (G1 and H1 as sources; never seen in training) is in this card's metrics "
+                 "(`evaluation (mer evaluate)`): the model alone, the model + "
+                 f"{EVAL['refine']} optimiser iterations, and the optimiser on the same windows."
+                 if metrics else "It has not been evaluated on LAFAN1 yet: its metrics hold the training losses only.")
+    summary = (f"mer's default model, bundled with the package: `mer retarget` without `--model` and `mer demo` use it, "
+               "offline. Trained only on synthetic motion generated in code (no third-party motion data), with every "
+               f"built-in robot ({', '.join(ROBOTS)}) as source (reference) and as target; the `base` preset (H = 96, "
+               f"2 layers per decoder, 4 Heun steps = 7 network evaluations), trained for {step} steps; the teacher is "
+               f"the optimiser (`mer shards solve`). {evaluated}")
+    note = DATASETS["synthetic"].note
+    card = card_from_checkpoint(folder, name=NAME, status="bundled", summary=summary, license_note=note, reproduce=reproduce_text(step))
+    if card.license != DATASETS["synthetic"].license or card.training.get("dataset") != "synthetic":
+        raise SystemExit(f"the checkpoint in {folder} does not describe synthetic training data: {card.training}")
+    cards = source_cards_dir()
+    if cards is None:
+        raise SystemExit("run this from a source checkout (cards/models is missing)")
+    path = write_card(card, cards)
+    print(f"card: {path} (and its packaged copy)")
+    return path
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--work", default=str(REPO / "runs"), help="where shards and the run go (default runs/)")
     ap.add_argument("--minutes", type=float, default=80.0, help="minutes of training in all (default 80)")
     ap.add_argument("--clock", choices=["cpu", "wall"], default="cpu", help="what --minutes counts (default: CPU time)")
     ap.add_argument("--lafan1", help="LAFAN1-layout folder for the evaluations (e.g. ../shared/data/lafan1)")
-    ap.add_argument("--skip-train", action="store_true", help="evaluate and bundle WORK/mer-base as it is")
+    ap.add_argument("--skip-train", action="store_true", help="evaluate and bundle the run as it is")
+    ap.add_argument("--bundle-only", action="store_true",
+                    help=f"no shards, training or evaluation: bundle and card the run, with WORK/{EVALUATION_FILE} as its "
+                    "evaluation when that file exists")  # fmt: skip
+    ap.add_argument("--run", help=f"the checkpoint folder to evaluate and bundle (default WORK/{NAME}; training always writes WORK/{NAME})")
     ap.add_argument("--no-bundle", action="store_true")
     args = ap.parse_args()
+    if args.bundle_only and args.no_bundle:
+        ap.error("--bundle-only and --no-bundle contradict each other")
     work = Path(args.work)
-    if not args.skip_train:
+    run_dir = Path(args.run) if args.run else work / NAME
+    if not (args.skip_train or args.bundle_only):
         shards = shards_step(work)
-        train_step(work, shards, args.minutes, args.lafan1, args.clock)
-    run_dir = work / NAME
+        run_dir = train_step(work, shards, args.minutes, args.lafan1, args.clock)
     metrics = None
-    if args.lafan1:
+    evaluation = work / EVALUATION_FILE
+    if args.bundle_only:
+        if evaluation.is_file():
+            reports = json.loads(evaluation.read_text())
+            evaluated = {str(Path(r["model"]).resolve()) for r in reports.values() if r.get("model")}
+            if evaluated != {str(run_dir.resolve())}:
+                raise SystemExit(f"{evaluation} evaluates {', '.join(sorted(evaluated)) or 'no model'}, not {run_dir}: "
+                                 f"bundle that run (--run), evaluate this one (--skip-train --lafan1 DIR), or move the file away")
+            metrics = card_metrics(reports)
+            print(f"evaluation: {evaluation}")
+        else:
+            print(f"evaluation: none ({evaluation} does not exist); the card holds the training metrics only")
+    elif args.lafan1:
         reports = evaluate_step(run_dir, args.lafan1)
-        (work / f"{NAME}-evaluation.json").write_text(json.dumps(reports, indent=2) + "\n")
+        evaluation.write_text(json.dumps(reports, indent=2) + "\n")
         metrics = card_metrics(reports)
     if not args.no_bundle:
-        bundle_step(run_dir, metrics)
+        card_step(bundle_step(run_dir, metrics), metrics)
     return 0
 
 

@@ -41,7 +41,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    "side (GIF: base install; MP4: needs ffmpeg)")
     p.add_argument("--video-fps", type=float, help="frame rate of the video [Hz] (default: the motion's 30; lower renders faster)")
     p.add_argument("--model", help="checkpoint folder, zoo name or ORG/NAME for --method diffusion "
-                   "(default: the bundled model mer-tiny-synthetic, for demos only)")
+                   "(default: the bundled model mer-base, trained on synthetic motion only)")
     p.add_argument("--method", choices=["diffusion", "optimize"], help="default: diffusion for a file, optimize for a dataset")
     p.add_argument("--steps", type=int, help="sampler steps (default: the model's, <= 20)")
     p.add_argument("--guidance", type=float, help="test-time energy guidance step (default: the model's)")
@@ -77,7 +77,7 @@ def cmd_retarget(args) -> int:
         from mer_models.zoo import DEFAULT_MODEL
 
         model = DEFAULT_MODEL
-        print(f"no --model: using the bundled demo model {model!r} (synthetic training, not for real use)", file=sys.stderr)
+        print(f"no --model: using the bundled model {model!r} (trained on synthetic motion only; `mer zoo info {model}`)", file=sys.stderr)
     res = retarget_file(
         args.input, args.source, args.target, out_csv=args.output, npz=args.npz, mcap=args.mcap, plot=args.plot,
         video=args.video, video_fps=args.video_fps,

@@ -2,8 +2,8 @@
 
 >>> from mer_models import zoo
 >>> [e.name for e in zoo.list_models()]            # the catalogue (and the user's published models)
->>> folder = zoo.download("mer-tiny-synthetic")    # verified config.json + model.safetensors
->>> ckpt = zoo.load("mer-tiny-synthetic")            # the model, built and loaded strictly
+>>> folder = zoo.download("mer-base")              # verified config.json + model.safetensors
+>>> ckpt = zoo.load("mer-base")                    # the model, built and loaded strictly
 
 A name resolves through its card (``cards/models/<name>.md``) to a Hub repository at a pinned
 commit, with every file's sha256 and size; see docs/zoo.md.

@@ -33,7 +33,7 @@ log = logging.getLogger(__name__)
 
 __all__ = ["Resolved", "list_models", "model_info", "where", "resolve", "download", "load", "DEFAULT_MODEL", "REQUIRED_FILES"]
 
-DEFAULT_MODEL = "mer-tiny-synthetic"  # bundled: trained on synthetic motion, for demos and tests
+DEFAULT_MODEL = "mer-base"  # bundled: trained on synthetic motion only, every built-in robot as source and target
 REQUIRED_FILES = ("config.json", "model.safetensors")
 
 

@@ -80,18 +80,18 @@ class PlannedModel:
 def _base_reproduce() -> str:
     return "\n".join([
         "mer shards build --input LAFAN1_DIR --robots g1 h1 --split paper --targets " + " ".join(BASE_TARGETS) + " --out shards/lafan1",
-        "mer train --config paper --shards shards/lafan1 --out runs/mer-base --steps STEPS --device cuda",
-        "mer evaluate --model runs/mer-base --input LAFAN1_DIR --targets " + " ".join(BASE_TARGETS) + " --save runs/mer-base/metrics.json",
-        "mer zoo publish runs/mer-base --name mer-base --repo-id ORG/mer-base",
+        "mer train --config paper --shards shards/lafan1 --out runs/mer-paper --steps STEPS --device cuda",
+        "mer evaluate --model runs/mer-paper --input LAFAN1_DIR --targets " + " ".join(BASE_TARGETS) + " --save runs/mer-paper/metrics.json",
+        "mer zoo publish runs/mer-paper --name mer-paper --repo-id ORG/mer-paper",
     ])
 
 
 def _finetune_reproduce(robot: str) -> str:
-    name = f"mer-base-{robot}"
+    name = f"mer-paper-{robot}"
     return "\n".join([
-        f"mer finetune --base mer-base --robot {robot} --shards shards/lafan1 --out runs/{name} --steps STEPS --device cuda",
+        f"mer finetune --base mer-paper --robot {robot} --shards shards/lafan1 --out runs/{name} --steps STEPS --device cuda",
         f"mer evaluate --model runs/{name} --input LAFAN1_DIR --targets {robot} --save runs/{name}/metrics.json",
-        f"mer zoo publish runs/{name} --name {name} --repo-id ORG/{name} --base mer-base",
+        f"mer zoo publish runs/{name} --name {name} --repo-id ORG/{name} --base mer-paper",
     ])
 
 
@@ -102,8 +102,8 @@ def _training(targets: tuple[str, ...], extra: dict[str, Any] | None = None) -> 
 
 CATALOGUE: tuple[PlannedModel, ...] = (
     PlannedModel(
-        name="mer-base",
-        repo_id="mer-robotics/mer-base",
+        name="mer-paper",
+        repo_id="mer-robotics/mer-paper",
         summary="The paper's configuration (H = 240, 4 layers per decoder, 6 heads) trained on G1 and H1 LAFAN1 "
         "motion, retargeting to G1, H1, Atlas, Oli and Tron1.",
         targets=BASE_TARGETS,
@@ -114,15 +114,15 @@ CATALOGUE: tuple[PlannedModel, ...] = (
     ),
     *(
         PlannedModel(
-            name=f"mer-base-{robot}",
-            repo_id=f"mer-robotics/mer-base-{robot}",
-            summary=f"`mer-base` fine-tuned for {robot.capitalize()}, a robot the base model never saw: its skeleton is "
+            name=f"mer-paper-{robot}",
+            repo_id=f"mer-robotics/mer-paper-{robot}",
+            summary=f"`mer-paper` fine-tuned for {robot.capitalize()}, a robot the base model never saw: its skeleton is "
             "added to the training targets and training continues from the base weights (paper, unseen embodiments).",
             targets=(*BASE_TARGETS, robot),
             references=("g1", "h1"),
             training=_training((*BASE_TARGETS, robot), {"fine_tuned_for": robot}),
             reproduce=_finetune_reproduce(robot),
-            base="mer-base",
+            base="mer-paper",
             metric_robots=(robot,),
         )
         for robot in ("talos", "valkyrie")
