@@ -8,7 +8,7 @@ Presets (:data:`PRESETS`):
 
 * ``paper``: the paper's configuration (H = 240, 4 layers per decoder, 6 heads, FFN 1024,
   batch 16, ``T_w`` = 31, 60-frame windows).
-* ``tiny``: the same architecture, small enough to train on 2 CPU cores in minutes (tests, demo).
+* ``tiny``: the same architecture, small enough to train on 2 CPU cores in minutes (tests, CPU experiments).
 * ``base``: between the two, the configuration of ``mer-base``: trainable on a CPU in hours (on 2
   cores a step's cost is set by the number of tokens, not by the width: H = 96 costs 1.3x ``tiny``
   per sample for 6x the parameters, docs/model.md); samples with 4 Heun steps (7 network evaluations).
