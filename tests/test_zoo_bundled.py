@@ -158,6 +158,9 @@ def test_bundling_refuses_a_checkpoint_that_is_not_for_every_builtin_robot(tmp_p
         tb.bundle_step(make_checkpoint(tmp_path / "ck", targets=("g1", "h1"), references=("g1",)), None)
     with pytest.raises(PublishError, match="no checkpoint"):
         tb.bundle_step(tmp_path / "missing", None)
+    every = tuple(BUILTIN_ROBOTS)  # every robot, but skeletons other than this checkout's (fingerprints "fp-<robot>")
+    with pytest.raises(PublishError, match="other skeletons"):
+        tb.bundle_step(make_checkpoint(tmp_path / "ck8", targets=every, references=every), None)
     assert {p.name: p.read_bytes() for p in (bundled_dir() / zoo.DEFAULT_MODEL).iterdir()} == before
     assert not any(p.name.startswith(".tmp-") for p in bundled_dir().iterdir())
 

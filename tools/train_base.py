@@ -116,12 +116,20 @@ def bundle_step(run_dir: Path, metrics: dict | None) -> Path:
     from mer_models.zoo.fromckpt import read_checkpoint_meta
     from mer_models.zoo.registry import bundled_dir
 
+    from mer_data.registry import get_skeleton
+
     read_checkpoint_meta(run_dir)  # a mer checkpoint with config.json and model.safetensors, or a clear error
     meta = json.loads((run_dir / "config.json").read_text())
-    have = {k: sorted((meta.get("robots") or {}).get(k, {})) for k in ("targets", "references")}
+    robots = meta.get("robots") or {}
+    have = {k: sorted(robots.get(k, {})) for k in ("targets", "references")}
     if have != {"targets": sorted(ROBOTS), "references": sorted(ROBOTS)}:
         raise PublishError(f"{run_dir} is not a mer-base checkpoint: its robots are {have}, mer-base needs every built-in "
                            f"robot ({' '.join(ROBOTS)}) as target and as reference", path=run_dir / "config.json", element="robots")
+    stale = sorted({r for k in ("targets", "references") for r, fp in robots[k].items() if fp != get_skeleton(r).fingerprint})
+    if stale:
+        raise PublishError(f"{run_dir} was trained on other skeletons of {', '.join(stale)} than the built-in ones of this "
+                           "checkout (skeleton fingerprints differ)", path=run_dir / "config.json", element="robots",
+                           fix="train on shards built from this checkout's robots")  # fmt: skip
     dest = bundled_dir() / NAME
     tmp = dest.parent / f".tmp-{NAME}"
     shutil.rmtree(tmp, ignore_errors=True)
@@ -201,6 +209,8 @@ def main() -> int:
     args = ap.parse_args()
     if args.bundle_only and args.no_bundle:
         ap.error("--bundle-only and --no-bundle contradict each other")
+    if args.run and not (args.skip_train or args.bundle_only):
+        ap.error(f"--run names a checkpoint to bundle as it is: use it with --skip-train or --bundle-only (training writes WORK/{NAME})")
     work = Path(args.work)
     run_dir = Path(args.run) if args.run else work / NAME
     if not (args.skip_train or args.bundle_only):
