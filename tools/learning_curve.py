@@ -70,8 +70,9 @@ def run_curve(cfg_name: str, args, out: Path, minutes: float) -> list[dict]:
     info = {"shards": [str(p) for p in ds.paths], "samples": len(ds), "teacher": True}
     while (wall if args.clock == "wall" else cpu) < minutes or step == 0:
         c0, w0 = time.process_time(), time.time()
-        res = train(run, ds, out, steps=step + args.chunk_steps, resume=(out / "config.json").is_file(), bf16=args.bf16,
-                    data_info=info, device=args.device)  # fmt: skip
+        resume = (out / "config.json").is_file()
+        res = train(run, ds, out, steps=step + args.chunk_steps, resume=resume, bf16=args.bf16, data_info=info, device=args.device,
+                    init=None if resume or not args.init else Path(args.init) / "model.safetensors")  # fmt: skip
         cpu += (time.process_time() - c0) / 60
         wall += (time.time() - w0) / 60
         step = res.step
@@ -97,6 +98,8 @@ def main() -> int:
     ap.add_argument("--max-minutes", type=float, default=60.0, help="CPU minutes of training in all (default 60)")
     ap.add_argument("--minutes-each", type=float, default=10.0, help="with --configs: CPU minutes per configuration")
     ap.add_argument("--batch-size", type=int, help="override the preset's batch size")
+    ap.add_argument("--init", metavar="DIR", help="start from this checkpoint's weights (fresh optimiser), e.g. the bundled "
+                    "mer-base, to continue training in a session that lacks the run folder")
     ap.add_argument("--bf16", action="store_true", help="bfloat16 autocast (AMX on CPU)")
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--clock", choices=["cpu", "wall"], default="cpu",

@@ -3,7 +3,8 @@
     PYTHONPATH=$PWD python tools/train_base.py --minutes 80           # all steps; resumes where it stopped
     PYTHONPATH=$PWD python tools/train_base.py --skip-train           # evaluate and bundle runs/mer-base
 
-Steps (every one resumable; the same command continues a killed run):
+Steps (every one resumable; the same command continues a killed run; ``--from-bundled`` starts a
+new run from the committed weights when the run folder, with its optimiser state, is gone):
 
 1. **shards**: ``mer shards build --synthetic 8 --synthetic-seconds 20`` for the 8 built-in robots,
    each both source and target, one augmented skeleton per window and target (the paper's link
@@ -54,10 +55,12 @@ def shards_step(work: Path) -> Path:
     return out
 
 
-def train_step(work: Path, shards: Path, minutes: float, lafan1: str | None, clock: str) -> Path:
+def train_step(work: Path, shards: Path, minutes: float, lafan1: str | None, clock: str, init: str | None = None) -> Path:
     out = work / NAME
     cmd = [sys.executable, str(REPO / "tools" / "learning_curve.py"), "--config", "base", "--shards", str(shards), "--out", str(out),
            "--bf16", "--max-minutes", str(minutes), "--clock", clock, "--chunk-steps", "150"]  # fmt: skip
+    if init:
+        cmd += ["--init", init]
     if lafan1:
         cmd += ["--eval-input", lafan1, "--eval-targets", "g1", "h1", "atlas", "--eval-windows", "16"]
     print("+", " ".join(cmd[1:]), flush=True)
@@ -128,12 +131,16 @@ def main() -> int:
     ap.add_argument("--clock", choices=["cpu", "wall"], default="cpu", help="what --minutes counts (default: CPU time)")
     ap.add_argument("--lafan1", help="LAFAN1-layout folder for the evaluations (e.g. ../shared/data/lafan1)")
     ap.add_argument("--skip-train", action="store_true", help="evaluate and bundle WORK/mer-base as it is")
+    ap.add_argument("--from-bundled", action="store_true",
+                    help="a new run (no WORK/mer-base yet) starts from the bundled mer-base weights, with a fresh optimiser: "
+                    "how training continues in a session without the earlier run folder (exact resume needs that folder)")
     ap.add_argument("--no-bundle", action="store_true")
     args = ap.parse_args()
     work = Path(args.work)
     if not args.skip_train:
         shards = shards_step(work)
-        train_step(work, shards, args.minutes, args.lafan1, args.clock)
+        train_step(work, shards, args.minutes, args.lafan1, args.clock,
+                   str(REPO / 'mer_models' / 'bundled' / NAME) if args.from_bundled else None)
     run_dir = work / NAME
     metrics = None
     if args.lafan1:
