@@ -8,7 +8,7 @@ chunk, so the weights equal those of one uninterrupted run; killed, the same com
 After every chunk the checkpoint is evaluated with ``mer evaluate``'s library function, the model
 alone, on ``--eval-windows`` windows of the ``--eval-source`` robot's clips (the shipped weights
 never see LAFAN1, so every LAFAN1 clip is held out), and one JSON line is appended to
-``OUT/learning_curve.jsonl``: step, wall and CPU minutes of training so far (``process_time``:
+``OUT.learning_curve.jsonl`` (beside the checkpoint folder, which every save replaces): step, wall and CPU minutes of training so far (``process_time``:
 all threads of this process), the training loss, and g-mpbpe per target.
 
 ``--configs A B C --minutes-each M`` compares configurations for the same CPU budget each (the
@@ -62,7 +62,7 @@ def run_curve(cfg_name: str, args, out: Path, minutes: float) -> list[dict]:
         run = run.replace(train=dataclasses.replace(run.train, batch_size=args.batch_size))
     run = run.replace(train=dataclasses.replace(run.train, save_every=args.chunk_steps, log_every=min(10, args.chunk_steps)))
     ds = ShardDataset(args.shards, teacher=True)
-    curve_path = out / "learning_curve.jsonl"
+    curve_path = out.parent / f"{out.name}.learning_curve.jsonl"  # beside the folder: a checkpoint save replaces the folder
     curve = _curve(curve_path)
     cpu = curve[-1]["cpu_min"] if curve else 0.0
     wall = curve[-1]["wall_min"] if curve else 0.0

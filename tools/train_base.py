@@ -83,7 +83,7 @@ def evaluate_step(run_dir: Path, lafan1: str) -> dict:
 
 
 _COLS = (("g_mpbpe", "E_g-mpbpe [m]"), ("mpboe", "E_mpboe [rad]"), ("jerk_frame", "E_smooth [rad/frame^3]"), ("limit_violation", "limit violation"))
-_METHOD = {"model": "model alone (4 Heun steps, 7 evaluations)", "refine": f"model + {EVAL['refine']} optimiser iterations",
+_METHOD = {"model": "model alone (4 Euler steps, 4 evaluations)", "refine": f"model + {EVAL['refine']} optimiser iterations",
            "optimize": "optimiser (the teacher)"}  # fmt: skip
 
 
