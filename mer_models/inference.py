@@ -37,7 +37,7 @@ def sample_conditions(
     sampler: SamplerConfig,
     *,
     energy: EnergyConfig | None = None,
-    method: str = "heun",
+    method: str | None = None,
     steps: int | None = None,
     generator: torch.Generator | None = None,
     denoiser_wrapper: Callable | None = None,
@@ -45,9 +45,10 @@ def sample_conditions(
 ) -> torch.Tensor:
     """Sample ``D`` (B, T, Jt, 9) in the diffusion space for prepared conditions.
 
-    ``steps`` overrides ``sampler.steps``; ``denoiser_wrapper(denoiser) -> denoiser`` can add
+    ``method``/``steps`` override ``sampler.method``/``sampler.steps``; ``denoiser_wrapper(denoiser) -> denoiser`` can add
     in-painting; ``stats`` receives ``nfe`` (network evaluations).
     """
+    method = method or sampler.method
     if method not in SAMPLERS:
         raise ValueError(f"unknown sampler {method!r}; known: {', '.join(SAMPLERS)}")
     dev = cond.rot.device

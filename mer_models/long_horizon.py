@@ -88,7 +88,7 @@ def retarget_sequence(
     energy: EnergyConfig | None = None,
     fps: float = 30.0,
     steps: int | None = None,
-    method: str = "heun",
+    method: str | None = None,
     seed: int = 0,
     inpaint: bool = True,
     eta: np.ndarray | None = None,

@@ -153,7 +153,7 @@ def _fingerprint(name: str) -> str:
 
 def _resume_state(out: Path, run: RunConfig, model: RetargetModel, opt: torch.optim.Optimizer, rank: int, world: int):
     meta = _read_meta(out)
-    saved = from_dict(meta["run"])
+    saved = from_dict(meta["run"]).replace(sampler=run.sampler)  # sampling settings do not change training
     if saved != run:
         a, b = saved.to_dict(), run.to_dict()
         diff = [f"{s}.{k}" for s in a if isinstance(a[s], dict) for k in a[s] if a[s][k] != b[s][k]]

@@ -20,7 +20,7 @@ def test_paper_preset_is_the_papers_configuration():
 
 
 def test_unknown_preset_lists_the_known_ones():
-    with pytest.raises(ConfigError, match="tiny, paper|paper, tiny"):
+    with pytest.raises(ConfigError, match="paper, tiny, base"):
         preset("huge")
 
 
@@ -65,3 +65,14 @@ def test_unknown_missing_and_mistyped_fields_are_refused_by_name():
     d["extra_section"] = {}
     with pytest.raises(ConfigError, match="extra_section"):
         from_dict(d)
+
+
+def test_base_samples_with_few_euler_steps_and_old_checkpoints_load_with_heun():
+    run = preset("base")
+    assert (run.sampler.method, run.sampler.steps) == ("euler", 4)  # <= 8 network evaluations
+    d = json.loads(json.dumps(run.to_dict()))
+    assert from_dict(d) == run
+    del d["sampler"]["method"]  # written before the field existed
+    assert from_dict(d).sampler.method == "heun"
+    with pytest.raises(ConfigError, match="method"):
+        SamplerConfig(method="rk4")

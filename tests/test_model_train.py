@@ -95,3 +95,13 @@ def test_ddp_under_torchrun_with_gloo(tmp_path):
     assert state["world_size"] == 2 and state["step"] == 2
     rng = load_file(str(out / "optimizer.safetensors"))
     assert {"rng.noise.0", "rng.noise.1", "rng.torch.0", "rng.torch.1"} <= set(rng)
+
+
+def test_resume_accepts_another_sampler(tmp_path):
+    """Sampling settings are inference choices: a run continues after they change."""
+    run = micro_run()
+    train(run, dataset(), tmp_path / "a", steps=1)
+    other = run.replace(sampler=dataclasses.replace(run.sampler, steps=3, method="euler"))
+    res = train(other, dataset(), tmp_path / "a", steps=2, resume=True)
+    assert res.step == 2
+    assert json.loads((tmp_path / "a" / "config.json").read_text())["run"]["sampler"]["method"] == "euler"

@@ -144,3 +144,12 @@ def test_sharded_solve_covers_each_file_once(tmp_path):
     b = solve_shards(out, solver=SolverConfig(gn_iters=2), shard_index=1, num_shards=2)
     assert len(a) == len(b) == 1 and a[0]["shard"] != b[0]["shard"]
     assert ShardDataset(out).has_teacher
+
+
+def test_teacher_samples_load_in_dataloader_workers(solved):
+    """Worker processes open their own teacher handles (pickled without the open file)."""
+    ds = ShardDataset(solved)
+    loader = torch.utils.data.DataLoader(ds, batch_size=2, num_workers=2, collate_fn=collate)
+    batch = next(iter(loader))
+    assert batch["has_teacher"].all()
+    torch.testing.assert_close(batch["teacher"], collate([ds[0], ds[1]])["teacher"])

@@ -20,7 +20,7 @@ def test_dry_run_writes_weights_log_and_teacher(tmp_path):
     env = {**os.environ, "OUT": str(out), "WORK": str(work), "PYTHON": sys.executable, "OMP_NUM_THREADS": "1"}
     r = subprocess.run(["bash", str(REPO / "tools" / "train_device.sh"), "--dry-run"], env=env, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, (r.stdout + r.stderr)[-3000:]
-    for name in ("config.json", "model.safetensors", "train_log.jsonl", "learning_curve.jsonl", "teacher.json", "log.txt"):
+    for name in ("config.json", "model.safetensors", "train_log.jsonl", "run.learning_curve.jsonl", "teacher.json", "log.txt"):
         assert (out / name).is_file(), name
     cfg = json.loads((out / "config.json").read_text())
     assert cfg["step"] == 2 and cfg["run"]["name"] == "base"

@@ -50,7 +50,7 @@ def test_the_default_model_is_mer_base_bundled_and_described_by_its_card():
     else:
         assert "is in this card's metrics" in card.summary
         for src in ("g1", "h1"):
-            assert set(ev[f"source {src}, model alone (4 Heun steps, 7 evaluations)"]) == set(BUILTIN_ROBOTS)
+            assert set(ev[f"source {src}, {_train_base()._METHOD['model']}"]) == set(BUILTIN_ROBOTS)
 
 
 def test_the_bundled_checkpoint_covers_exactly_every_builtin_robot_as_source_and_target():
@@ -61,6 +61,7 @@ def test_the_bundled_checkpoint_covers_exactly_every_builtin_robot_as_source_and
     card = zoo.model_info(zoo.DEFAULT_MODEL).card
     assert card.targets == sorted(BUILTIN_ROBOTS) and card.robots["references"] == sorted(BUILTIN_ROBOTS)
     assert meta["run"]["name"] == "base" and meta["run"]["sampler"]["steps"] == 4
+    assert _train_base().sampler_text(meta["run"]["sampler"]) in card.summary  # the sampler as the checkpoint has it
 
 
 def test_the_bundled_card_is_rendered_from_the_checkpoint_metadata():

@@ -8,7 +8,7 @@ chunk, so the weights equal those of one uninterrupted run; killed, the same com
 After every chunk the checkpoint is evaluated with ``mer evaluate``'s library function, the model
 alone, on ``--eval-windows`` windows of the ``--eval-source`` robot's clips (the shipped weights
 never see LAFAN1, so every LAFAN1 clip is held out), and one JSON line is appended to
-``OUT/learning_curve.jsonl``: step, wall and CPU minutes of training so far (``process_time``:
+``OUT.learning_curve.jsonl`` (beside the checkpoint folder, which every save replaces): step, wall and CPU minutes of training so far (``process_time``:
 all threads of this process), the training loss, and g-mpbpe per target.
 
 ``--configs A B C --minutes-each M`` compares configurations for the same CPU budget each (the
@@ -62,7 +62,7 @@ def run_curve(cfg_name: str, args, out: Path, minutes: float) -> list[dict]:
         run = run.replace(train=dataclasses.replace(run.train, batch_size=args.batch_size))
     run = run.replace(train=dataclasses.replace(run.train, save_every=args.chunk_steps, log_every=min(10, args.chunk_steps)))
     ds = ShardDataset(args.shards, teacher=True)
-    curve_path = out / "learning_curve.jsonl"
+    curve_path = out.parent / f"{out.name}.learning_curve.jsonl"  # beside the folder: a checkpoint save replaces the folder
     curve = _curve(curve_path)
     cpu = curve[-1]["cpu_min"] if curve else 0.0
     wall = curve[-1]["wall_min"] if curve else 0.0
@@ -70,8 +70,9 @@ def run_curve(cfg_name: str, args, out: Path, minutes: float) -> list[dict]:
     info = {"shards": [str(p) for p in ds.paths], "samples": len(ds), "teacher": True}
     while (wall if args.clock == "wall" else cpu) < minutes or step == 0:
         c0, w0 = time.process_time(), time.time()
-        res = train(run, ds, out, steps=step + args.chunk_steps, resume=(out / "config.json").is_file(), bf16=args.bf16,
-                    data_info=info, device=args.device)  # fmt: skip
+        resume = (out / "config.json").is_file()
+        res = train(run, ds, out, steps=step + args.chunk_steps, resume=resume, bf16=args.bf16, data_info=info, device=args.device,
+                    init=None if resume or not args.init else Path(args.init) / "model.safetensors")  # fmt: skip
         cpu += (time.process_time() - c0) / 60
         wall += (time.time() - w0) / 60
         step = res.step
@@ -97,6 +98,8 @@ def main() -> int:
     ap.add_argument("--max-minutes", type=float, default=60.0, help="CPU minutes of training in all (default 60)")
     ap.add_argument("--minutes-each", type=float, default=10.0, help="with --configs: CPU minutes per configuration")
     ap.add_argument("--batch-size", type=int, help="override the preset's batch size")
+    ap.add_argument("--init", metavar="DIR", help="start from this checkpoint's weights (fresh optimiser), e.g. the bundled "
+                    "mer-base, to continue training in a session that lacks the run folder")
     ap.add_argument("--bf16", action="store_true", help="bfloat16 autocast (AMX on CPU)")
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--clock", choices=["cpu", "wall"], default="cpu",

@@ -5,7 +5,8 @@
     PYTHONPATH=$PWD python tools/train_base.py --skip-train --lafan1 DIR   # evaluate, bundle and card runs/mer-base
     PYTHONPATH=$PWD python tools/train_base.py --bundle-only --run DIR     # bundle and card a checkpoint as it is
 
-Steps (every one resumable; the same command continues a killed run):
+Steps (every one resumable; the same command continues a killed run; ``--from-bundled`` starts a
+new run from the committed weights when the run folder, with its optimiser state, is gone):
 
 1. **shards**: ``mer shards build --synthetic 8 --synthetic-seconds 20`` for the 8 built-in robots,
    each both source and target, one augmented skeleton per window and target (the paper's link
@@ -64,10 +65,12 @@ def shards_step(work: Path) -> Path:
     return out
 
 
-def train_step(work: Path, shards: Path, minutes: float, lafan1: str | None, clock: str) -> Path:
+def train_step(work: Path, shards: Path, minutes: float, lafan1: str | None, clock: str, init: str | None = None) -> Path:
     out = work / NAME
     cmd = [sys.executable, str(REPO / "tools" / "learning_curve.py"), "--config", "base", "--shards", str(shards), "--out", str(out),
            "--bf16", "--max-minutes", str(minutes), "--clock", clock, "--chunk-steps", "150"]  # fmt: skip
+    if init:
+        cmd += ["--init", init]
     if lafan1:
         cmd += ["--eval-input", lafan1, "--eval-targets", "g1", "h1", "atlas", "--eval-windows", "16"]
     print("+", " ".join(cmd[1:]), flush=True)
@@ -90,7 +93,7 @@ def evaluate_step(run_dir: Path, lafan1: str) -> dict:
 
 
 _COLS = (("g_mpbpe", "E_g-mpbpe [m]"), ("mpboe", "E_mpboe [rad]"), ("jerk_frame", "E_smooth [rad/frame^3]"), ("limit_violation", "limit violation"))
-_METHOD = {"model": "model alone (4 Heun steps, 7 evaluations)", "refine": f"model + {EVAL['refine']} optimiser iterations",
+_METHOD = {"model": "model alone (4 Euler steps, 4 evaluations)", "refine": f"model + {EVAL['refine']} optimiser iterations",
            "optimize": "optimiser (the teacher)"}  # fmt: skip
 
 
@@ -167,20 +170,29 @@ def reproduce_text(step: int) -> str:
     ])  # fmt: skip
 
 
+def sampler_text(sampler: dict[str, Any]) -> str:
+    """'4 Euler steps = 4 network evaluations' for a checkpoint's ``run.sampler`` (no ``method``: Heun, as the loader reads it)."""
+    method, steps = sampler.get("method", "heun"), int(sampler["steps"])
+    evals = 2 * steps - 1 if method == "heun" else steps  # Heun: the last step is an Euler step; euler/ancestral: one per step
+    return f"{steps} {method.capitalize()} steps = {evals} network evaluations"
+
+
 def card_step(folder: Path, metrics: dict[str, Any] | None) -> Path:
     """Render ``cards/models/mer-base.md`` and its packaged copy from the bundled checkpoint ``folder``."""
     from mer_models.zoo.fromckpt import DATASETS, card_from_checkpoint
     from mer_models.zoo.registry import source_cards_dir, write_card
 
-    step = int(json.loads((folder / "config.json").read_text())["step"])
+    meta = json.loads((folder / "config.json").read_text())
+    step, model = int(meta["step"]), meta["run"]["model"]
     evaluated = ("Its accuracy on LAFAN1 motion (G1 and H1 as sources; never seen in training) is in this card's metrics "
                  "(`evaluation (mer evaluate)`): the model alone, the model + "
                  f"{EVAL['refine']} optimiser iterations, and the optimiser on the same windows."
                  if metrics else "It has not been evaluated on LAFAN1 yet: its metrics hold the training losses only.")
     summary = (f"mer's default model, bundled with the package: `mer retarget` without `--model` and `mer demo` use it, "
                "offline. Trained only on synthetic motion generated in code (no third-party motion data), with every "
-               f"built-in robot ({', '.join(ROBOTS)}) as source (reference) and as target; the `base` preset (H = 96, "
-               f"2 layers per decoder, 4 Heun steps = 7 network evaluations), trained for {step} steps; the teacher is "
+               f"built-in robot ({', '.join(ROBOTS)}) as source (reference) and as target; the `{meta['run']['name']}` preset "
+               f"(H = {model['hidden']}, {model['layers']} layers per decoder, {sampler_text(meta['run']['sampler'])}), "
+               f"trained for {step} steps; the teacher is "
                f"the optimiser (`mer shards solve`). {evaluated}")
     note = DATASETS["synthetic"].note
     card = card_from_checkpoint(folder, name=NAME, status="bundled", summary=summary, license_note=note, reproduce=reproduce_text(step))
@@ -205,6 +217,9 @@ def main() -> int:
                     help=f"no shards, training or evaluation: bundle and card the run, with WORK/{EVALUATION_FILE} as its "
                     "evaluation when that file exists")  # fmt: skip
     ap.add_argument("--run", help=f"the checkpoint folder to evaluate and bundle (default WORK/{NAME}; training always writes WORK/{NAME})")
+    ap.add_argument("--from-bundled", action="store_true",
+                    help="a new run (no WORK/mer-base yet) starts from the bundled mer-base weights, with a fresh optimiser: "
+                    "how training continues in a session without the earlier run folder (exact resume needs that folder)")
     ap.add_argument("--no-bundle", action="store_true")
     args = ap.parse_args()
     if args.bundle_only and args.no_bundle:
@@ -215,7 +230,8 @@ def main() -> int:
     run_dir = Path(args.run) if args.run else work / NAME
     if not (args.skip_train or args.bundle_only):
         shards = shards_step(work)
-        run_dir = train_step(work, shards, args.minutes, args.lafan1, args.clock)
+        run_dir = train_step(work, shards, args.minutes, args.lafan1, args.clock,
+                             str(REPO / "mer_models" / "bundled" / NAME) if args.from_bundled else None)
     metrics = None
     evaluation = work / EVALUATION_FILE
     if args.bundle_only:

@@ -10,7 +10,7 @@
 #   3. train: tools/learning_curve.py, bf16 autocast, for --minutes of wall time, evaluated after every
 #      chunk on --eval-input (a LAFAN1-layout folder carried to the device) when given;
 #   4. evaluate: `mer evaluate` (model and optimiser on the same windows) when --eval-input is given.
-# $OUT receives: config.json, model.safetensors, train_log.jsonl, learning_curve.jsonl, teacher.json,
+# $OUT receives: config.json, model.safetensors, train_log.jsonl, run.learning_curve.jsonl, teacher.json,
 # evaluation.json/.txt, and log.txt (everything printed).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -55,7 +55,7 @@ if [ -n "$EVAL_INPUT" ]; then EVAL=(--eval-input "$EVAL_INPUT" --eval-targets g1
 $PY tools/learning_curve.py --config "$CONFIG" --shards "$WORK/shards" --out "$WORK/run" --device "$DEVICE" --bf16 \
   --clock wall --max-minutes "$MINUTES" --chunk-steps "$STEPS_CHUNK" "${BATCH[@]}" "${EVAL[@]}"
 echo "train_device: training in $(( $(date +%s) - t1 )) s"
-cp "$WORK/run/config.json" "$WORK/run/model.safetensors" "$WORK/run/train_log.jsonl" "$WORK/run/learning_curve.jsonl" "$OUT/"
+cp "$WORK/run/config.json" "$WORK/run/model.safetensors" "$WORK/run/train_log.jsonl" "$WORK/run.learning_curve.jsonl" "$OUT/"
 if [ -n "$EVAL_INPUT" ]; then
   for src in g1 h1; do
     $PY -m mer_models evaluate --model "$WORK/run" --input "$EVAL_INPUT" --source $src --targets $ROBOTS --split all \

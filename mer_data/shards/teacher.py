@@ -26,6 +26,7 @@ subfolder, so the shard folder's ``*.h5`` glob never mistakes it for a shard):
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import h5py
@@ -57,6 +58,7 @@ class TeacherFile:
 
     def __init__(self, path: str | Path, meta: ShardMeta) -> None:
         self.path = Path(path)
+        self.file: h5py.File | None = None
         try:
             self.file = h5py.File(self.path, "r")
         except OSError as exc:
@@ -82,15 +84,30 @@ class TeacherFile:
         self.solved = self.file["solved"][()]
         self.energy = self.file["energy"][()]
         self.solver = json.loads(a["solver"])
+        self._pid = os.getpid()
+
+    def _f(self) -> h5py.File:
+        if self.file is None or self._pid != os.getpid():  # one handle per process (DataLoader workers)
+            self.file = h5py.File(self.path, "r")
+            self._pid = os.getpid()
+        return self.file
 
     def solution(self, row: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """(q (T, J), base_pos (T, 3), base_rotvec (T, 3)) of sample ``k`` of ``row``; None if unsolved."""
         if not self.solved[row, k]:
             return None
-        return self.file["q"][row, k], self.file["base_pos"][row, k], self.file["base_rotvec"][row, k]
+        f = self._f()
+        return f["q"][row, k], f["base_pos"][row, k], f["base_rotvec"][row, k]
 
     def close(self) -> None:
-        self.file.close()
+        if self.file is not None:
+            self.file.close()
+            self.file = None
+
+    def __getstate__(self):  # pickles without the open handle (DataLoader workers reopen)
+        d = dict(self.__dict__)
+        d["file"], d["_pid"] = None, -1
+        return d
 
 
 def teacher_features(skel: Skeleton, q: np.ndarray, base_pos: np.ndarray, base_rotvec: np.ndarray, fps: float) -> np.ndarray:
