@@ -108,21 +108,18 @@ def _column_nodes(skel: Skeleton, columns: tuple[str, ...]) -> np.ndarray:
 
 
 def lafan1_columns(robot: str | Robot) -> tuple[str, ...]:
-    """The joint column order of a robot's LAFAN1 layout (its card's ``lafan1_columns``).
+    """The joint column order of a robot's CSV layout: its card's ``lafan1_columns`` (the LAFAN1
+    robot datasets' order: g1, h1, h1_2), else mer's own layout, the skeleton's actuated joints in
+    node order (what ``mer retarget -o`` writes for every other robot).
 
     Raises:
         UnknownRobotError: the robot is not registered.
-        MotionFormatError: the card names no layout, or the layout does not match the skeleton.
+        MotionFormatError: the card's layout does not match the skeleton.
     """
     r = load_robot(robot) if isinstance(robot, str) else robot
     cols = r.card.lafan1_columns
     if not cols:
-        raise MotionFormatError(
-            f"robot {r.name!r} has no LAFAN1 column layout",
-            path=r.card.path,
-            element="lafan1_columns",
-            fix="add `lafan1_columns: [joint, ...]` (the CSV's joint order) to the robot card",
-        )
+        return tuple(r.skeleton.joint_names)
     joints = set(r.skeleton.joint_names)
     missing, extra = sorted(joints - set(cols)), [c for c in cols if c not in joints]
     if missing or extra or len(set(cols)) != len(cols):

@@ -28,7 +28,6 @@ from typing import Callable, Sequence
 
 import h5py
 import numpy as np
-import torch
 
 from mer_data.errors import MerError, ShardFormatError
 from mer_data.locks import hold_locks

@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 from mer_data.csv_numeric import parse_numeric_csv
 from mer_data.errors import MotionFormatError, UnknownRobotError
 from mer_data.motion_io import QUAT_TOLERANCE, lafan1_columns, parse_lafan1, read_lafan1_csv, write_lafan1_csv
+from mer_data.registry import load_robot
 from mer_data.synthetic import walking_motion
 
 G1_COLS = 36
@@ -185,13 +186,16 @@ def test_corrupt_gzip(tmp_path):
         read_lafan1_csv(p, "g1")
 
 
-def test_unknown_robot_and_robot_without_layout(tmp_path):
+def test_unknown_robot_and_robot_without_a_lafan1_layout(tmp_path):
+    """A robot without LAFAN1 data reads mer's own layout (its joints in node order, what
+    ``mer retarget -o`` writes), so every built-in robot can be a source; a G1 file is not it."""
     p = write_lafan1_csv(tmp_path / "c.csv", walking_motion("g1", 0.2))
     with pytest.raises(UnknownRobotError, match="unknown robot 'nope'.*g1"):
         read_lafan1_csv(p, "nope")
-    with pytest.raises(MotionFormatError, match="no LAFAN1 column layout") as exc:
+    atlas = load_robot("atlas")
+    assert atlas.card.lafan1_columns is None and lafan1_columns("atlas") == tuple(atlas.skeleton.joint_names)
+    with pytest.raises(MotionFormatError, match="expected 37 .atlas: root xyz, root quaternion xyzw, 30 joint angles"):
         read_lafan1_csv(p, "atlas")
-    assert "lafan1_columns" in exc.value.fix
 
 
 def test_errors_name_the_file(tmp_path):

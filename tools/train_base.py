@@ -177,6 +177,20 @@ def sampler_text(sampler: dict[str, Any]) -> str:
     return f"{steps} {method.capitalize()} steps = {evals} network evaluations"
 
 
+def _range(metrics: dict[str, Any], method: str) -> tuple[float, float]:
+    vals = [float(row["E_g-mpbpe [m]"]) for key, table in metrics.items() if isinstance(table, dict) and _METHOD[method] in key
+            for row in table.values() if row.get("E_g-mpbpe [m]", "-") != "-"]  # fmt: skip
+    return min(vals), max(vals)
+
+
+def _verdict(metrics: dict[str, Any]) -> str:
+    """One plain sentence on what the figures mean for a user (computed from them, not written by hand)."""
+    m, r, o = _range(metrics, "model"), _range(metrics, "refine"), _range(metrics, "optimize")
+    return (f"Measured: the model alone is {m[0]:.2f}-{m[1]:.2f} m from the scaled reference (E_g-mpbpe), the model + "
+            f"{EVAL['refine']} optimiser iterations {r[0]:.3f}-{r[1]:.3f} m, the optimiser alone {o[0]:.3f}-{o[1]:.3f} m: "
+            "for real use take `--refine 5` or `--method optimize`; the model alone is not yet accurate (issue 11).")
+
+
 def card_step(folder: Path, metrics: dict[str, Any] | None) -> Path:
     """Render ``cards/models/mer-base.md`` and its packaged copy from the bundled checkpoint ``folder``."""
     from mer_models.zoo.fromckpt import DATASETS, card_from_checkpoint
@@ -186,7 +200,7 @@ def card_step(folder: Path, metrics: dict[str, Any] | None) -> Path:
     step, model = int(meta["step"]), meta["run"]["model"]
     evaluated = ("Its accuracy on LAFAN1 motion (G1 and H1 as sources; never seen in training) is in this card's metrics "
                  "(`evaluation (mer evaluate)`): the model alone, the model + "
-                 f"{EVAL['refine']} optimiser iterations, and the optimiser on the same windows."
+                 f"{EVAL['refine']} optimiser iterations, and the optimiser on the same windows. {_verdict(metrics)}"
                  if metrics else "It has not been evaluated on LAFAN1 yet: its metrics hold the training losses only.")
     summary = (f"mer's default model, bundled with the package: `mer retarget` without `--model` and `mer demo` use it, "
                "offline. Trained only on synthetic motion generated in code (no third-party motion data), with every "
