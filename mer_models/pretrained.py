@@ -18,7 +18,8 @@ The loaded model keeps its checkpoint's metadata as ``model.pretrained_info``, s
 ``model.push_to_hub(repo_id)`` re-publishes it with its configuration. A model built in code needs
 ``run=`` and ``robots=`` to be saved or pushed.
 
-:data:`RetargetModel` gets these methods when this module is imported (``import mer_models`` does).
+:class:`~mer_models.model.RetargetModel` exposes them as ``RetargetModel.from_pretrained``,
+``model.save_pretrained`` and ``model.push_to_hub`` (which import this module on use).
 """
 
 from __future__ import annotations
