@@ -143,6 +143,10 @@ def solve_shards(
     """
     if num_shards < 1 or (shard_index is not None and not 0 <= shard_index < num_shards):
         raise MerError(f"--shard-index {shard_index} is not in 0..{num_shards - 1}", fix="use 0 <= I < N")
+    items = [paths] if isinstance(paths, (str, Path)) else list(paths)
+    if out is None and any(str(p).startswith("hf://") for p in items):
+        raise MerError("shards read from the Hub live in the read-only Hub cache: the teacher files need a folder of their own",
+                       fix="pass --out DIR (and ShardDataset(..., teacher=DIR) when training)")  # fmt: skip
     ds = ShardDataset(paths, teacher=None)
     files = [i for i in range(len(ds.files)) if shard_index is None or i % num_shards == shard_index]
     records = []

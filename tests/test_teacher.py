@@ -153,3 +153,8 @@ def test_teacher_samples_load_in_dataloader_workers(solved):
     batch = next(iter(loader))
     assert batch["has_teacher"].all()
     torch.testing.assert_close(batch["teacher"], collate([ds[0], ds[1]])["teacher"])
+
+
+def test_hub_shards_need_an_out_folder():
+    with pytest.raises(MerError, match="--out"):
+        solve_shards("hf://datasets/someone/shards")
