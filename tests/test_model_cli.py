@@ -110,3 +110,14 @@ def test_evaluate_prints_the_papers_table(tmp_path, capsys, micro_checkpoint):  
     assert all(r["metrics"]["limit_violation"]["mean"] == 0 for r in report["rows"])
     code, out, _ = run(capsys, "evaluate", "--input", data, "--targets", "tron1", "--max-windows", "1", "--json", "--opt-iters", "2", "--opt-gn-iters", "2")
     assert code == 0 and json.loads(out)["rows"][0]["method"] == "optimize"
+
+
+def test_a_robot_without_lafan1_data_is_a_source_in_mers_own_layout(tmp_path, capsys):
+    """What `mer retarget -o` writes for Atlas (no LAFAN1 layout) is read back as an Atlas source."""
+    src = synthetic_csv(tmp_path / "walk.csv", frames=40)
+    code, _, err = run(capsys, "retarget", src, "--source", "g1", "--target", "atlas", "--method", "optimize", "-o", tmp_path / "atlas.csv")
+    assert code == 0, err
+    code, _, err = run(capsys, "retarget", tmp_path / "atlas.csv", "--source", "atlas", "--target", "h1", "--method", "optimize",
+                       "-o", tmp_path / "h1.csv")  # fmt: skip
+    assert code == 0, err
+    assert np.loadtxt(tmp_path / "h1.csv", delimiter=",").shape == (40, 7 + 19)
