@@ -191,7 +191,9 @@ class TrainConfig:
 
     Attributes:
         batch_size: windows per step (summed over DDP ranks: each rank takes ``batch_size / world``).
-        lr, weight_decay, warmup, grad_clip: AdamW with linear warm-up, then constant.
+        lr, weight_decay, warmup, grad_clip: AdamW with linear warm-up, then constant, or (when
+            ``lr_decay_steps`` > 0) a cosine decay from ``lr`` to ``lr * lr_min_ratio`` over that many
+            steps after the warm-up, constant after (``mer-base``'s curve was flat at a constant rate).
         p_mean, p_std: EDM training noise ``ln sigma ~ N(p_mean, p_std^2)``. Default N(0, 1.5^2): the
             coverage of the 1000-step cosine-schedule DDPM the paper's lineage trains with (EDM's
             image default N(-1.2, 1.2^2) leaves the high-noise regime, where retargeting is decided,
@@ -206,6 +208,8 @@ class TrainConfig:
     lr: float = 2e-4
     weight_decay: float = 0.0
     warmup: int = 200
+    lr_decay_steps: int = 0
+    lr_min_ratio: float = 0.1
     grad_clip: float = 1.0
     p_mean: float = 0.0
     p_std: float = 1.5
@@ -221,6 +225,8 @@ class TrainConfig:
         _check(self.lr > 0, c, "lr", "must be > 0")
         _check(self.p_std > 0, c, "p_std", "must be > 0")
         _check(isinstance(self.warmup, int) and self.warmup >= 0, c, "warmup", "must be an integer >= 0")
+        _check(isinstance(self.lr_decay_steps, int) and self.lr_decay_steps >= 0, c, "lr_decay_steps", "must be an integer >= 0")
+        _check(0.0 <= self.lr_min_ratio <= 1.0, c, "lr_min_ratio", "must be in [0, 1]")
         _check(isinstance(self.opt_iters, int) and self.opt_iters >= 0, c, "opt_iters", "must be an integer >= 0")
         _check_finite(self)
 
@@ -271,7 +277,7 @@ def preset(name: str) -> RunConfig:
 _SECTIONS = {"model": ModelConfig, "energy": EnergyConfig, "sampler": SamplerConfig, "train": TrainConfig}
 #: Fields added after checkpoints were first written, with the value that reproduces the older
 #: behaviour: a checkpoint without them loads with that value (and nothing else may be missing).
-_LEGACY = {EnergyConfig: {"w_ori": 0.0}, SamplerConfig: {"method": "heun"}}
+_LEGACY = {EnergyConfig: {"w_ori": 0.0}, SamplerConfig: {"method": "heun"}, TrainConfig: {"lr_decay_steps": 0, "lr_min_ratio": 0.1}}
 
 
 def _section(cls, data: Any, where: str):

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 import time
 from dataclasses import dataclass
@@ -140,8 +141,14 @@ def _dist() -> tuple[int, int]:
 
 
 def _lr(run: RunConfig, step: int) -> float:
-    w = run.train.warmup
-    return run.train.lr * (min(1.0, (step + 1) / w) if w > 0 else 1.0)
+    """Linear warm-up, then constant or a cosine decay to ``lr * lr_min_ratio`` (:class:`TrainConfig`)."""
+    t = run.train
+    if step < t.warmup:
+        return t.lr * (step + 1) / t.warmup
+    if t.lr_decay_steps <= 0:
+        return t.lr
+    u = min(1.0, (step - t.warmup) / t.lr_decay_steps)
+    return t.lr * (t.lr_min_ratio + (1 - t.lr_min_ratio) * 0.5 * (1 + math.cos(math.pi * u)))
 
 
 def _fingerprint(name: str) -> str:

@@ -105,3 +105,15 @@ def test_resume_accepts_another_sampler(tmp_path):
     res = train(other, dataset(), tmp_path / "a", steps=2, resume=True)
     assert res.step == 2
     assert json.loads((tmp_path / "a" / "config.json").read_text())["run"]["sampler"]["method"] == "euler"
+
+
+def test_learning_rate_warms_up_then_decays_by_cosine():
+    from mer_models.train import _lr
+
+    run = micro_run()
+    run = run.replace(train=dataclasses.replace(run.train, lr=1.0, warmup=10, lr_decay_steps=100, lr_min_ratio=0.1))
+    assert _lr(run, 0) == pytest.approx(0.1) and _lr(run, 9) == pytest.approx(1.0)
+    assert _lr(run, 10) == pytest.approx(1.0) and _lr(run, 60) == pytest.approx(0.55) and _lr(run, 110) == pytest.approx(0.1)
+    assert _lr(run, 10_000) == pytest.approx(0.1)
+    const = run.replace(train=dataclasses.replace(run.train, lr_decay_steps=0))
+    assert _lr(const, 500) == 1.0
