@@ -172,3 +172,30 @@ def test_bundle_only_refuses_the_evaluation_of_another_run(tmp_path, monkeypatch
     monkeypatch.setattr(sys, "argv", ["train_base.py", "--work", str(tmp_path), "--bundle-only", "--run", str(tmp_path / "run")])
     with pytest.raises(SystemExit, match="not .*run: bundle that run"):
         tb.main()
+
+
+def test_bundling_refuses_weights_not_trained_on_synthetic_motion(tmp_path):
+    """A run for every built-in robot whose shards were built from motion files (LAFAN1's layout,
+    here generated in code) is refused: only weights trained on synthetic motion may ship; so is a
+    run whose shards cannot be opened to check. The package is left untouched."""
+    from mer_data.errors import PublishError
+
+    from shard_helpers import build, make_input
+
+    tb = _train_base()
+    before = {p.name: p.read_bytes() for p in (bundled_dir() / zoo.DEFAULT_MODEL).iterdir()}
+    build(make_input(tmp_path / "in", robots=("g1",)), tmp_path / "shards", robots=("g1",), targets=("g1",), augment=0)
+    every = tuple(BUILTIN_ROBOTS)
+    ck = make_checkpoint(tmp_path / "ck", targets=every, references=every)
+    meta = json.loads((ck / "config.json").read_text())
+    for side in ("targets", "references"):
+        meta["robots"][side] = {r: get_skeleton(r).fingerprint for r in every}
+    meta["data"] = {"shards": [str(p) for p in sorted((tmp_path / "shards").glob("*.h5"))], "motion": "synthetic (a false claim)"}
+    (ck / "config.json").write_text(json.dumps(meta))
+    with pytest.raises(PublishError, match="not synthetic motion: its weights must not ship"):
+        tb.bundle_step(ck, None)
+    meta["data"]["shards"] = [str(tmp_path / "gone.h5")]
+    (ck / "config.json").write_text(json.dumps(meta))
+    with pytest.raises(PublishError, match="not readable"):
+        tb.bundle_step(ck, None)
+    assert {p.name: p.read_bytes() for p in (bundled_dir() / zoo.DEFAULT_MODEL).iterdir()} == before

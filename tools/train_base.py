@@ -112,6 +112,30 @@ def card_metrics(reports: dict) -> dict:
     return out
 
 
+def _require_synthetic(meta: dict, run_dir: Path) -> None:
+    """Refuse a run whose training shards are not all synthetic (weights trained on LAFAN1 carry its
+    CC BY-NC-ND terms and must never ship), or whose shards can no longer be read to check."""
+    from mer_data.errors import PublishError
+    from mer_data.shards import open_shard
+
+    shards = (meta.get("data") or {}).get("shards")
+    if not isinstance(shards, list) or not shards:
+        raise PublishError(f"{run_dir} does not record the shard files it was trained on", path=run_dir / "config.json",
+                           element="data.shards", fix="bundle a run trained by tools/train_base.py (it records them)")  # fmt: skip
+    for p in shards:
+        try:
+            f = open_shard(p)
+        except Exception as exc:  # noqa: BLE001 - any unreadable shard: cannot prove the data is synthetic
+            raise PublishError(f"cannot check the training data: shard {p} is not readable ({exc})", path=run_dir / "config.json",
+                               element="data.shards", fix="bundle on the machine that holds the run's shards") from None  # fmt: skip
+        source = f.meta.config.get("input")
+        f.close()
+        if source != "synthetic":
+            raise PublishError(f"{run_dir} was trained on {p}, built from {source!r}, not synthetic motion: its weights must not ship",
+                               path=run_dir / "config.json", element="data.shards",
+                               fix="keep LAFAN1-trained weights outside the repository; bundle a run on synthetic shards")  # fmt: skip
+
+
 def bundle_step(run_dir: Path, metrics: dict | None) -> Path:
     """Copy ``config.json`` (training metrics + ``metrics`` as its evaluation) and the weights of
     ``run_dir`` into ``mer_models/bundled/mer-base/``, replacing what is there atomically."""
@@ -133,6 +157,7 @@ def bundle_step(run_dir: Path, metrics: dict | None) -> Path:
         raise PublishError(f"{run_dir} was trained on other skeletons of {', '.join(stale)} than the built-in ones of this "
                            "checkout (skeleton fingerprints differ)", path=run_dir / "config.json", element="robots",
                            fix="train on shards built from this checkout's robots")  # fmt: skip
+    _require_synthetic(meta, run_dir)
     dest = bundled_dir() / NAME
     tmp = dest.parent / f".tmp-{NAME}"
     shutil.rmtree(tmp, ignore_errors=True)
