@@ -18,9 +18,12 @@ scaled reference is a pose the target can actually reach.
   pelvis-to-shoulder vector and the shoulder line) and stretched as the reference's trunk is.
 * *Limbs* (hip → knee → ankle → toe, shoulder → elbow → hand): every segment is scaled by its own
   ratio ``|b_T - a_T| / |b_R - a_R|`` of zero-pose lengths, keeping the reference's direction.
-  A segment that is rigid in the reference (no joint between ``a`` and ``b``: a toe on the foot,
-  H1's hand on its forearm) is the target's own zero-pose vector turned by the reference body's
-  rotation instead, so a flat foot stays flat on a robot whose toe sits lower under the ankle.
+  A foot segment that is rigid in the reference (no joint between ankle and toe) is the target's
+  own zero-pose vector turned by the reference body's rotation instead, so a flat foot stays flat
+  on a robot whose toe sits lower under the ankle. Only the foot: every robot's zero pose stands
+  on flat feet, but arms rest differently (G1's hang, Atlas' spread), so a hand fixed to its
+  forearm (H1) keeps the reference's direction like any other segment (turning the target's rest
+  vector sent Valkyrie's hands 0.2 m off when H1 was the reference).
 * Nodes that are not key points follow their nearest key-point (or base) ancestor with that
   segment's ratio. A segment the target lacks (no knee, say) falls back to the body part's
   ``alpha_k``.
@@ -40,7 +43,8 @@ Orientation goals (:func:`orientation_goals`): the base, the feet (ankle bodies,
 have toes) and the hands are
 tracked in orientation relative to each robot's zero-pose frame; a hand's goal is turned by the
 rotation that takes the target's zero-pose forearm onto the reference's, so robots whose arms rest
-differently (Atlas' T-pose, G1's hanging arms) still mean the same hand pose.
+differently (Atlas' T-pose, G1's hanging arms) still mean the same hand pose. A hand without a
+wrist, on either side, is not tracked: its orientation is its forearm's.
 """
 
 from __future__ import annotations
@@ -285,7 +289,7 @@ def _segment_plan(ref: Skeleton, target: Skeleton, root: float | None = None) ->
             fallback = parts.get(part_of.get(k, ""), parts.get(ROOT_PART, 1.0)) if parts else 1.0
             r = _ratio(np.linalg.norm(rt[b] - rt[a]), np.linalg.norm(rr[n] - rr[prev]), fallback) if a >= 0 and b >= 0 else fallback
             segments.append((prev, n, r))
-            if a >= 0 and b >= 0 and _rigid(ref, prev, n):
+            if a >= 0 and b >= 0 and k.endswith("_toe") and _rigid(ref, prev, n):
                 rigid[n] = rt[b] - rt[a]
             prev, prev_name = n, k
     keyed = {0, *width, *(n for _, n, _ in segments)}
@@ -422,8 +426,11 @@ def orientation_calibration(ref: Skeleton, target: Skeleton) -> dict[str, np.nda
     feet (every robot's zero pose stands upright on flat feet); for a hand, the smallest rotation
     taking the target's zero-pose forearm (elbow → hand; shoulder → hand without an elbow) onto
     the reference's. A foot is tracked only where both robots have a toe: on a point foot the
-    ankle key point sits on the shank, which must not be held flat like a sole. A target hand fixed to its forearm (no wrist joint, H1) is not tracked: the
-    elbow and hand positions already set its orientation, and a goal would only fight them.
+    ankle key point sits on the shank, which must not be held flat like a sole. A target hand fixed
+    to its forearm (no wrist joint, H1) is not tracked: the elbow and hand positions already set its
+    orientation, and a goal would only fight them. Nor is a hand whose *reference* has no wrist: its
+    orientation is the reference's forearm's, a goal that pulled wristed robots (Oli, TALOS,
+    Valkyrie from H1) against their own arm positions.
     """
     out = {"base": np.eye(3)}
     rr, rt = ref.rest_positions, target.rest_positions
@@ -440,6 +447,9 @@ def orientation_calibration(ref: Skeleton, target: Skeleton) -> dict[str, np.nda
             elbow = target.keypoints.get(f"{side}_elbow", -1)
             if elbow >= 0 and _rigid(target, elbow, target.keypoints[k]):
                 continue  # no wrist (H1): the hand turns with the forearm, whose direction the positions set
+            r_elbow = ref.keypoints.get(f"{side}_elbow", -1)
+            if r_elbow >= 0 and _rigid(ref, r_elbow, ref.keypoints[k]):
+                continue  # a reference without a wrist (H1) says nothing about the hand beyond its forearm
             for start in (f"{side}_elbow", f"{side}_shoulder"):
                 a_r, a_t = ref.keypoints.get(start, -1), target.keypoints.get(start, -1)
                 if a_r >= 0 and a_t >= 0:

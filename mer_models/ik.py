@@ -39,7 +39,7 @@ from .kinematics import BatchGraph, batch_fk
 __all__ = ["ancestors", "gauss_newton_ik", "DEFAULT_SMOOTH", "DEFAULT_TOL"]
 
 #: Weight of the temporal smoothness prior, relative to ``w_kp`` [m^2 / rad^2] (docs/model.md).
-DEFAULT_SMOOTH = 0.02
+DEFAULT_SMOOTH = 0.05
 #: Relative cost change under which a frame counts as converged.
 DEFAULT_TOL = 1e-4
 

@@ -16,6 +16,7 @@ from mer_data.rotations import axis_angle_to_matrix
 from .config import EnergyConfig, SamplerConfig
 from .kinematics import graph_from_batch
 from .model import Conditions, RetargetModel
+from .ik import DEFAULT_SMOOTH
 from .optimize import DEFAULT_GN_ITERS, DEFAULT_ITERS, optimize_motion
 from .sampling import CountingDenoiser, EnergyGuidance, karras_sigmas, sample_euler, sample_euler_ancestral, sample_heun
 
@@ -60,7 +61,9 @@ def sample_conditions(
         if energy is None:
             raise ValueError("energy guidance needs the energy configuration")
         guidance = EnergyGuidance(model, energy, sampler.guidance)
-    x = initial_noise(cond.shape, float(sigmas[0]), generator, dev)
+    x = initial_noise(cond.shape, float(sigmas[0]), generator, dev) * sampler.init_noise
+    if model.cfg.goal_prior:  # residual diffusion: the noise is about the goals
+        x = x + model.goal_prior(cond)
     kw = {"generator": generator} if method == "ancestral" else {}
     with torch.no_grad():
         model.encode(cond)
@@ -85,10 +88,12 @@ def optimize_batch(
     gn_iters: int = DEFAULT_GN_ITERS,
     device: str | torch.device = "cpu",
     init: Mapping[str, torch.Tensor] | None = None,
+    smooth: float = DEFAULT_SMOOTH,
 ) -> dict[str, torch.Tensor]:
     """The optimiser on a collated batch, in the batch's frame (no model needed).
 
-    ``init`` warm-starts it (``q``, ``base_pos``, ``base_rot``: e.g. a model's output to refine).
+    ``init`` warm-starts it (``q``, ``base_pos``, ``base_rot``: e.g. a model's output to refine);
+    ``smooth``: the weight of its temporal prior.
     """
     g = graph_from_batch(batch, "tgt", device)
     goal = batch["ref_scaled_pos"].to(device, torch.float32)
@@ -97,6 +102,6 @@ def optimize_batch(
     if "ref_goal_rot" in batch:
         rkw = {"goal_rot": batch["ref_goal_rot"].to(device, torch.float32), "rot_mask": batch["ref_rot_mask"].to(device)}
     out = optimize_motion(energy, g, batch["joint_map"].to(device, torch.float32), goal, ref_rot, iters=iters, gn_iters=gn_iters,
-                          init=init, **rkw)  # fmt: skip
+                          init=init, smooth=smooth, **rkw)  # fmt: skip
     return {"q": out["q"], "base_pos": out["base_pos"], "base_rot": out["base_rot"], "energy": out["energy"]}
 

@@ -38,6 +38,7 @@ from mer_data.shards.teacher import TEACHER_FORMAT, TEACHER_VERSION, teacher_pat
 
 from .config import EnergyConfig
 from .inference import optimize_batch
+from .ik import DEFAULT_SMOOTH
 from .optimize import DEFAULT_GN_ITERS
 
 log = logging.getLogger(__name__)
@@ -53,12 +54,14 @@ class SolverConfig:
         energy: the energy weights.
         gn_iters: most Levenberg-Marquardt iterations.
         scaling: reference scaling (``segments`` or ``parts``, :mod:`mer_data.scaling`).
+        smooth: weight of the optimiser's temporal prior (:data:`mer_models.ik.DEFAULT_SMOOTH`).
         batch: windows solved together.
     """
 
     energy: EnergyConfig = EnergyConfig()
     gn_iters: int = DEFAULT_GN_ITERS
     scaling: str = "segments"
+    smooth: float = DEFAULT_SMOOTH
     batch: int = 64
 
     def to_json(self) -> str:
@@ -183,17 +186,17 @@ def _solve_file(ds: ShardDataset, fi: int, final: Path, solver: SolverConfig, de
     f = _open_partial(partial, meta, S, J, solver)
     try:
         solved = f["solved"][()]
-        slots = ds._cols[fi]["sample_target"]  # (rows, S): target index of each slot
-        first = ds._first[fi]
+        slots = ds.slot_targets(fi)  # (rows, S): target index of each slot
         seconds, frames = float(f.attrs["seconds"]), int(f.attrs["frames"])
         done = done_before + int(solved.sum())
         for t_idx, t_name in enumerate(meta.targets):
             todo = [(r, k) for r in range(meta.num_rows) for k in range(S) if int(slots[r, k]) == t_idx and not solved[r, k]]
             for a in range(0, len(todo), solver.batch):
                 part = todo[a : a + solver.batch]
-                samples = [ds._sample(ds.windows[first + r], k) for r, k in part]
+                samples = [ds.slot_sample(fi, r, k) for r, k in part]
                 t0 = time.perf_counter()
-                motion = optimize_batch(solver.energy, collate(samples, scaling=solver.scaling), gn_iters=solver.gn_iters, device=device)
+                motion = optimize_batch(solver.energy, collate(samples, scaling=solver.scaling), gn_iters=solver.gn_iters,
+                                        smooth=solver.smooth, device=device)
                 dt = time.perf_counter() - t0
                 q = motion["q"].float().cpu().numpy()
                 pos = motion["base_pos"].float().cpu().numpy()

@@ -119,6 +119,30 @@ def test_orientation_calibration():
     d_r = g1.rest_positions[g1.keypoints["left_hand"]] - g1.rest_positions[g1.keypoints["left_elbow"]]
     np.testing.assert_allclose(c @ (d_t / np.linalg.norm(d_t)), d_r / np.linalg.norm(d_r), atol=1e-9)
     assert "left_hand" not in orientation_calibration(g1, h1)  # H1 has no wrist: its hand is its forearm
+    assert "left_hand" not in orientation_calibration(h1, atlas)  # nor does it tell a wristed robot what its hand does
+    assert "left_ankle" in orientation_calibration(h1, atlas)
+
+
+@pytest.mark.parametrize("target", ROBOTS)
+@settings(max_examples=3, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1))
+def test_limb_segments_keep_the_references_directions(target, seed):
+    """Directions from the reference, lengths from the target, for every limb segment but the foot
+    (toe), also where the reference's hand is fixed to its forearm (H1) and the target's arms rest
+    differently (a rigid-segment rule turning the target's rest vector sent Valkyrie's hands 0.2 m off)."""
+    ref, tgt = get_skeleton("h1"), get_skeleton(target)
+    p, r = _random_motion(ref, 3, seed)
+    out = scale_reference_positions(p, ref, tgt, rotations=r)
+    checked = 0
+    for a, b in _segments(ref):
+        if b.endswith("toe") or tgt.keypoints.get(a, -1) < 0 or tgt.keypoints.get(b, -1) < 0:
+            continue
+        d_ref = p[:, ref.keypoints[b]] - p[:, ref.keypoints[a]]
+        d_out = out[:, ref.keypoints[b]] - out[:, ref.keypoints[a]]
+        unit = d_ref / np.linalg.norm(d_ref, axis=-1, keepdims=True)
+        np.testing.assert_allclose(d_out / np.linalg.norm(d_out, axis=-1, keepdims=True), unit, atol=1e-9, err_msg=f"{a}-{b}")
+        checked += 1
+    assert checked >= 2
 
 
 def test_orientation_term_is_zero_on_the_reference_and_positive_when_turned():

@@ -215,6 +215,14 @@ class ShardDataset(torch.utils.data.Dataset):
             raise KeyError(f"{self.paths[w.file].name} has no sample for target {target!r} variant {variant}")
         return self._sample(w, m.targets.index(target) * m.variants + variant)
 
+    def slot_targets(self, file: int) -> np.ndarray:
+        """(rows, S) index into ``files[file].meta.targets`` of every sample slot of that shard file."""
+        return self._cols[file]["sample_target"]
+
+    def slot_sample(self, file: int, row: int, slot: int) -> TrainingSample:
+        """The sample in ``slot`` of ``row`` of shard file ``file`` (what a teacher file is indexed by)."""
+        return self._sample(self.windows[self._first[file] + row], slot)
+
     def _sample(self, w: WindowRef, k: int) -> TrainingSample:
         f, cols = self.files[w.file], self._cols[w.file]
         m = f.meta
