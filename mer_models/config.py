@@ -68,6 +68,17 @@ class ModelConfig:
         sigma_data: EDM ``sigma_data`` of the normalized features.
         pos_scale: [m] positions are divided by this in the diffusion space.
         vel_scale: [m/s] velocities are divided by this in the diffusion space.
+        goal_input: give every target token its scaled-reference goal (position, position relative to
+            the base goal, velocity, orientation, each with a flag; :data:`mer_models.model.GOAL_DIM`
+            channels) through its own encoder, added to the token: the network then learns the
+            target's inverse kinematics from goals it is told, instead of also learning the scaling
+            from the reference tokens (docs/model.md). Checkpoints written before it existed load
+            with ``False``.
+        goal_prior: denoise around the goals (residual diffusion): ``D = P + precond(x - P)`` where
+            ``P`` (:meth:`mer_models.model.RetargetModel.goal_prior`) holds the base's goal pose and
+            every node's goal position and velocity (angles 0). At high noise the output starts at
+            the goals instead of at zero; at low noise ``D -> x`` as before. Checkpoints written
+            before it existed load with ``False``.
     """
 
     hidden: int = 240
@@ -81,12 +92,16 @@ class ModelConfig:
     sigma_data: float = 0.5
     pos_scale: float = 1.0
     vel_scale: float = 2.0
+    goal_input: bool = False
+    goal_prior: bool = False
 
     def __post_init__(self) -> None:
         c = "ModelConfig"
         for name in ("hidden", "layers", "heads", "cross_heads_per_condition", "ffn", "frames"):
             _check(isinstance(getattr(self, name), int) and getattr(self, name) > 0, c, name, "must be a positive integer")
         _check(self.hidden % self.heads == 0, c, "hidden", f"hidden={self.hidden} is not divisible by heads={self.heads}")
+        for name in ("goal_input", "goal_prior"):
+            _check(isinstance(getattr(self, name), bool), c, name, "must be true or false")
         _check(self.window % 2 == 1 and self.window >= 1, c, "window", f"window={self.window} must be odd and >= 1")
         _check(0.0 <= self.dropout < 1.0, c, "dropout", "must be in [0, 1)")
         for name in ("sigma_data", "pos_scale", "vel_scale"):
@@ -164,6 +179,9 @@ class SamplerConfig:
             slope at the next, much smaller sigma is multiplied by the whole step (measured on
             ``mer-base`` at 300 steps: Heun 2 steps put the base 94 m off, Euler 1-8 steps 0.35 m),
             so few-step presets use ``euler`` (docs/model.md).
+        init_noise: scale of the initial noise (1: EDM's ``sigma_max * N(0, I)``; 0: start at the
+            noise distribution's mean, a deterministic retargeting). Models with ``goal_prior`` start
+            at their goals plus that noise. Checkpoints written before it existed load with 1.
     """
 
     steps: int = 16
@@ -173,9 +191,11 @@ class SamplerConfig:
     guidance: float = 0.0
     overlap: int = 10
     method: str = "heun"
+    init_noise: float = 1.0
 
     def __post_init__(self) -> None:
         c = "SamplerConfig"
+        _check(0.0 <= self.init_noise <= 1.0, c, "init_noise", f"init_noise={self.init_noise} must be in [0, 1]")
         _check(self.method in SAMPLER_METHODS, c, "method", f"method={self.method!r} is not one of {', '.join(SAMPLER_METHODS)}")
         _check(isinstance(self.steps, int) and self.steps >= 1, c, "steps", "must be an integer >= 1")
         _check(0 < self.sigma_min < self.sigma_max, c, "sigma_min", "need 0 < sigma_min < sigma_max")
@@ -257,7 +277,7 @@ PRESETS: dict[str, RunConfig] = {
     ),
     "base": RunConfig(
         name="base",
-        model=ModelConfig(hidden=96, layers=2, heads=4, cross_heads_per_condition=1, ffn=256, dropout=0.0),
+        model=ModelConfig(hidden=96, layers=2, heads=4, cross_heads_per_condition=1, ffn=256, dropout=0.0, goal_input=True, goal_prior=True),
         sampler=SamplerConfig(steps=4, method="euler"),
         train=TrainConfig(batch_size=16, lr=7e-4, warmup=100, save_every=200),
     ),
@@ -277,7 +297,7 @@ def preset(name: str) -> RunConfig:
 _SECTIONS = {"model": ModelConfig, "energy": EnergyConfig, "sampler": SamplerConfig, "train": TrainConfig}
 #: Fields added after checkpoints were first written, with the value that reproduces the older
 #: behaviour: a checkpoint without them loads with that value (and nothing else may be missing).
-_LEGACY = {EnergyConfig: {"w_ori": 0.0}, SamplerConfig: {"method": "heun"}, TrainConfig: {"lr_decay_steps": 0, "lr_min_ratio": 0.1}}
+_LEGACY = {ModelConfig: {"goal_input": False, "goal_prior": False}, EnergyConfig: {"w_ori": 0.0}, SamplerConfig: {"method": "heun", "init_noise": 1.0}, TrainConfig: {"lr_decay_steps": 0, "lr_min_ratio": 0.1}}
 
 
 def _section(cls, data: Any, where: str):
@@ -304,7 +324,7 @@ def _section(cls, data: Any, where: str):
         v = data[f.name]
         default = getattr(cls(), f.name)
         ok = isinstance(v, type(default)) or (isinstance(default, float) and isinstance(v, int) and not isinstance(v, bool))
-        if isinstance(default, int) and isinstance(v, bool):
+        if isinstance(default, int) and not isinstance(default, bool) and isinstance(v, bool):
             ok = False
         if not ok:
             raise ConfigError(

@@ -50,7 +50,7 @@ class EvalOptions:
         max_windows: at most this many windows per domain, spread evenly over the clips (None: all).
         methods: ``model``, ``refine`` (the model, then at most ``refine`` optimiser iterations from
             its output) and/or ``optimize``.
-        steps, guidance: sampler overrides (None: the checkpoint's).
+        steps, guidance, init_noise: sampler overrides (None: the checkpoint's).
         batch_size: windows per forward pass.
         seed: sampling noise.
         opt_iters, opt_gn_iters: the optimiser's Adam and (most) Levenberg-Marquardt iterations.
@@ -65,6 +65,7 @@ class EvalOptions:
     methods: tuple[str, ...] = ("model", "optimize")
     steps: int | None = None
     guidance: float | None = None
+    init_noise: float | None = None
     batch_size: int = 16
     seed: int = 0
     opt_iters: int = DEFAULT_ITERS
@@ -201,7 +202,8 @@ def evaluate(
                     batch = collate(samples, scaling=opts.scaling)
                     if method in ("model", "refine"):
                         run = checkpoint.run
-                        sampler = run.sampler if opts.guidance is None else SamplerConfig(**{**run.sampler.__dict__, "guidance": float(opts.guidance)})
+                        over = {k: float(v) for k, v in {"guidance": opts.guidance, "init_noise": opts.init_noise}.items() if v is not None}
+                        sampler = SamplerConfig(**{**run.sampler.__dict__, **over})
                         gen = torch.Generator().manual_seed(opts.seed + a)
                         motion = sample_batch(checkpoint.model, batch, sampler, energy=model_energy, steps=opts.steps, generator=gen)
                         if method == "refine":

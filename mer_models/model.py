@@ -21,13 +21,14 @@ from typing import Any, Mapping
 import torch
 from torch import nn
 
-from mer_data.rotations import axis_angle_to_matrix
+from mer_data.features import finite_difference
+from mer_data.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 
 from .config import EnergyConfig, ModelConfig
 from .edm import combine, precondition
-from .energy import f_kin
+from .energy import f_kin, keypoint_goals, orientation_pairs
 from .kinematics import BatchGraph, graph_from_batch
-from .network import RetargetNet
+from .network import GOAL_DIM, RetargetNet
 from .representation import (
     base_origin,
     canonical_rotation,
@@ -35,9 +36,10 @@ from .representation import (
     normalize,
     transform_features,
     transform_points,
+    unwrap_rotvec,
 )
 
-__all__ = ["Conditions", "RetargetModel"]
+__all__ = ["Conditions", "RetargetModel", "GOAL_DIM"]
 
 
 @dataclass
@@ -55,6 +57,8 @@ class Conditions:
         goal_rot: (B, T, Jr, 3, 3) orientation goals, canonical frame, and rot_mask (B, Jr) the
             reference nodes that carry one (None: no orientation term).
         ref_tokens: the encoded reference (filled on first use, reused by every denoising step).
+        goal_feats: (B, T, Jt, GOAL_DIM) the goal input of ``goal_input`` networks (filled on first use).
+        prior: (B, T, Jt, 9) the goals as a sample, for ``goal_prior`` networks (filled on first use).
     """
 
     reference: torch.Tensor
@@ -68,6 +72,8 @@ class Conditions:
     goal_rot: torch.Tensor | None = None
     rot_mask: torch.Tensor | None = None
     ref_tokens: torch.Tensor | None = None
+    goal_feats: torch.Tensor | None = None
+    prior: torch.Tensor | None = None
 
     @property
     def shape(self) -> tuple[int, int, int, int]:
@@ -127,6 +133,73 @@ class RetargetModel(nn.Module):
             cond.ref_tokens = self.net.encode_reference(cond.reference, cond.ref_graph)
         return cond.ref_tokens
 
+    def goal_features(self, cond: Conditions) -> torch.Tensor:
+        """(B, T, Jt, GOAL_DIM) what each target node is asked to do, in the diffusion space.
+
+        Per target node, from the joint map and the scaled reference (the goals of ``f_kin``):
+        goal position / ``pos_scale``, the same relative to the base's goal, goal velocity /
+        ``vel_scale``, a flag (the node has a position goal), its orientation goal's first two
+        columns and a flag (the node's orientation is tracked). Zero where a node has no goal.
+        Computed once per :class:`Conditions` (no parameters).
+        """
+        if cond.goal_feats is not None:
+            return cond.goal_feats
+        eta = cond.eta
+        goals, has = keypoint_goals(eta, cond.goal)  # (B, T, Jt, 3), (B, Jt)
+        has = has & cond.tgt_graph.mask
+        m = has[:, None, :, None].to(goals.dtype)
+        ps, vs = self.cfg.pos_scale, self.cfg.vel_scale
+        rel = goals - goals[:, :, :1]
+        vel = finite_difference(goals, cond.fps, dim=-3)
+        B, T, Jt = goals.shape[:3]
+        rot6 = goals.new_zeros(B, T, Jt, 6)
+        has_rot = torch.zeros(B, Jt, dtype=torch.bool, device=goals.device)
+        if cond.goal_rot is not None and cond.rot_mask is not None:
+            grot, has_rot = orientation_pairs(eta, cond.goal_rot, cond.rot_mask)
+            has_rot = has_rot & cond.tgt_graph.mask
+            rot6 = grot[..., :, :2].transpose(-1, -2).reshape(B, T, Jt, 6)
+        mr = has_rot[:, None, :, None].to(goals.dtype)
+        feats = torch.cat(
+            [goals / ps * m, rel / ps * m, vel / vs * m, m.expand(B, T, Jt, 1), rot6 * mr, mr.expand(B, T, Jt, 1)], -1
+        )
+        assert feats.shape[-1] == GOAL_DIM
+        cond.goal_feats = feats
+        return feats
+
+    def goal_prior(self, cond: Conditions) -> torch.Tensor:
+        """(B, T, Jt, 9) the goals as a sample in the diffusion space (``goal_prior``; no parameters).
+
+        Base: its orientation goal (rotation vector, unwrapped along time; 0 without orientation
+        goals), its goal position and velocity. Other nodes: angle 0; position and velocity of the
+        node's goal, or of its nearest ancestor's that has one (the base's at worst). Padding: 0.
+        """
+        if cond.prior is not None:
+            return cond.prior
+        goals, has = keypoint_goals(cond.eta, cond.goal)  # (B, T, Jt, 3), (B, Jt)
+        g = cond.tgt_graph
+        has = has & g.mask
+        has[:, 0] = True
+        B, T, Jt = goals.shape[:3]
+        src = torch.zeros(B, Jt, dtype=torch.long, device=goals.device)  # node whose goal stands in
+        idx = torch.arange(B, device=goals.device)
+        for j in range(1, Jt):  # parents come first (topological order)
+            p = g.parents[:, j].clamp_min(0)
+            src[:, j] = torch.where(has[:, j], torch.full_like(p, j), src[idx, p])
+        pos = torch.gather(goals, 2, src[:, None, :, None].expand(B, T, Jt, 3))
+        vel = finite_difference(pos, cond.fps, dim=-3)
+        prior = goals.new_zeros(B, T, Jt, 9)
+        ps, vs = self.cfg.pos_scale, self.cfg.vel_scale
+        if cond.goal_rot is not None and cond.rot_mask is not None:
+            grot, has_rot = orientation_pairs(cond.eta, cond.goal_rot, cond.rot_mask)
+            rv = unwrap_rotvec(matrix_to_axis_angle(grot[:, :, 0]))
+            prior[:, :, 0, 0:3] = rv * has_rot[:, None, :1].to(rv.dtype)
+        prior[:, :, 0, 3:6] = pos[:, :, 0] / ps
+        prior[:, :, 0, 6:9] = vel[:, :, 0] / vs
+        prior[:, :, 1:, 1:4] = pos[:, :, 1:] / ps
+        prior[:, :, 1:, 4:7] = vel[:, :, 1:] / vs
+        cond.prior = prior * g.mask[:, None, :, None].to(prior.dtype)
+        return cond.prior
+
     def denoise(self, x: torch.Tensor, sigma: torch.Tensor | float, cond: Conditions) -> torch.Tensor:
         """``D(x, sigma, C)``: x (B, T, Jt, 9) diffusion space, sigma scalar or (B,) → (B, T, Jt, 9).
 
@@ -135,9 +208,14 @@ class RetargetModel(nn.Module):
         B = x.shape[0]
         sigma = torch.as_tensor(sigma, dtype=x.dtype, device=x.device).reshape(-1).expand(B)
         _, _, c_in, c_noise = precondition(sigma, self.cfg.sigma_data)
-        f = self.net(x * c_in.view(-1, 1, 1, 1), c_noise, self.encode(cond), cond.tgt_graph, cond.eta)
+        goal = self.goal_features(cond) if self.cfg.goal_input else None
+        prior = self.goal_prior(cond).to(x.dtype) if self.cfg.goal_prior else None
+        if prior is not None:  # residual diffusion: denoise x - P, add P back (angles have P = 0)
+            x = x - prior
+        f = self.net(x * c_in.view(-1, 1, 1, 1), c_noise, self.encode(cond), cond.tgt_graph, cond.eta, goal)
         g = cond.tgt_graph
-        return combine(x, f.to(x.dtype), sigma, self.cfg.sigma_data, g.lower, g.upper, g.mask)
+        d = combine(x, f.to(x.dtype), sigma, self.cfg.sigma_data, g.lower, g.upper, g.mask)
+        return d if prior is None else d + prior
 
     # ---- physics of a prediction ------------------------------------------------------------
     def physical(self, d: torch.Tensor) -> torch.Tensor:

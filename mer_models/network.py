@@ -28,9 +28,13 @@ from .attention import MultiConditionCrossAttention, SpatialAttention, TemporalA
 from .config import ModelConfig
 from .kinematics import BatchGraph
 
-__all__ = ["RetargetNet", "sinusoids", "JOINT_OUT"]
+__all__ = ["RetargetNet", "sinusoids", "JOINT_OUT", "GOAL_DIM"]
 
 JOINT_OUT = 7  # a joint node's live features: angle, position (3), velocity (3)
+#: Channels of a target token's goal input (``ModelConfig.goal_input``; :meth:`RetargetModel.goal_features`):
+#: position (3), position relative to the base goal (3), velocity (3), flag (1), orientation as its
+#: first two columns (6), flag (1).
+GOAL_DIM = 17
 
 
 def sinusoids(n: int, dim: int, device=None) -> torch.Tensor:
@@ -144,6 +148,7 @@ class RetargetNet(nn.Module):
         self.encoder = Decoder(cfg, with_reference=False)
         self.denoiser = Decoder(cfg, with_reference=True)
         self.noise = NoiseEmbedding(cfg.hidden)
+        self.goal = _mlp(GOAL_DIM, cfg.hidden, cfg.hidden) if cfg.goal_input else None
         self.base_head = nn.Linear(cfg.hidden, FEATURE_DIM)
         self.joint_head = nn.Linear(cfg.hidden, JOINT_OUT)
         for head in (self.base_head, self.joint_head):  # start as the identity denoiser (F = 0)
@@ -161,10 +166,16 @@ class RetargetNet(nn.Module):
         ref_tokens: torch.Tensor,
         tgt_graph: BatchGraph,
         eta: torch.Tensor,
+        goal: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """x_in (B, T, Jt, 9) (already scaled by ``c_in``), c_noise (B,), ref_tokens (B, T, Jr, H),
-        eta (B, Jt, Jr) → F (B, T, Jt, 9) (joint nodes' last two channels are zero)."""
+        eta (B, Jt, Jr), goal (B, T, Jt, GOAL_DIM) (``goal_input`` networks only) → F (B, T, Jt, 9)
+        (joint nodes' last two channels are zero)."""
         extra = self.noise(c_noise)[:, None, None, :]
+        if self.goal is not None:
+            if goal is None:
+                raise ValueError("this network was configured with goal_input and needs the goal features")
+            extra = extra + self.goal(goal.to(extra.dtype))
         h = self.denoiser(x_in, tgt_graph, extra, ref_tokens, eta)
         base = self.base_head(h[:, :, :1])
         joints = self.joint_head(h[:, :, 1:])

@@ -76,3 +76,16 @@ def test_base_samples_with_few_euler_steps_and_old_checkpoints_load_with_heun():
     assert from_dict(d).sampler.method == "heun"
     with pytest.raises(ConfigError, match="method"):
         SamplerConfig(method="rk4")
+
+
+def test_base_takes_the_goals_and_old_checkpoints_load_without_them():
+    run = preset("base")
+    assert run.model.goal_input and run.model.goal_prior
+    assert not (preset("paper").model.goal_input or preset("paper").model.goal_prior)
+    d = json.loads(json.dumps(run.to_dict()))
+    assert from_dict(d).model.goal_input is True
+    del d["model"]["goal_input"], d["model"]["goal_prior"]  # written before the fields existed
+    assert (from_dict(d).model.goal_input, from_dict(d).model.goal_prior) == (False, False)
+    d["model"]["goal_input"] = 1  # an integer is not a flag
+    with pytest.raises(ConfigError, match="model.goal_input"):
+        from_dict(d)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 
 import pytest
 import torch
@@ -13,10 +14,11 @@ from mer_models.model import RetargetModel
 from model_helpers import MICRO, mixed_batch
 
 
-@pytest.fixture(scope="module")
-def model():
+@pytest.fixture(scope="module", params=[(False, False), (True, False), (True, True)], ids=["reference-only", "goal-input", "goal-prior"])
+def model(request):
     torch.manual_seed(0)
-    m = RetargetModel(MICRO).eval()
+    goal_input, goal_prior = request.param
+    m = RetargetModel(dataclasses.replace(MICRO, goal_input=goal_input, goal_prior=goal_prior)).eval()
     with torch.no_grad():  # non-trivial output heads (they start at zero)
         for head in (m.net.base_head, m.net.joint_head):
             head.weight.normal_(0, 0.5)
@@ -66,6 +68,7 @@ def test_output_moves_with_the_input_heading_and_position(model):
     ref2 = transform_features(ref, R[None], -(shift @ R)[None])  # p -> R p + shift
     b2["reference"] = ref2
     b2["ref_scaled_pos"] = move(b["ref_scaled_pos"])
+    b2["ref_goal_rot"] = R @ b["ref_goal_rot"]  # world orientation goals turn with the world
     x = torch.randn(1, 60, b["tgt_mask"].shape[1], 9)
     with torch.no_grad():
         c1, c2 = model.conditions(b), model.conditions(b2)
@@ -109,3 +112,75 @@ def test_paper_configuration_builds(tmp_path):
     m = RetargetModel(preset("paper").model)
     n = m.num_parameters()
     assert 5e6 < n < 2e7  # two 4-layer decoders at H = 240
+
+
+def test_goal_features_give_each_node_its_scaled_reference_goal():
+    """goal_input: a mapped target node gets its goal (canonical frame, base-relative, velocity,
+    orientation); unmapped and padding nodes get zeros; the network uses them."""
+    from mer_models.energy import keypoint_goals, orientation_pairs
+    from mer_models.network import GOAL_DIM
+
+    m = RetargetModel(dataclasses.replace(MICRO, goal_input=True)).eval()
+    b = mixed_batch(("g1", "tron1"))
+    cond = m.conditions(b)
+    f = m.goal_features(cond)
+    assert f.shape == cond.shape[:3] + (GOAL_DIM,)
+    goals, has = keypoint_goals(cond.eta, cond.goal)
+    has = has & cond.tgt_graph.mask
+    assert has[:, 0].all() and not has.all()  # the base is mapped, some nodes are not
+    torch.testing.assert_close(f[..., 0:3], goals * has[:, None, :, None])
+    torch.testing.assert_close(f[..., 3:6], (goals - goals[:, :, :1]) * has[:, None, :, None])
+    assert torch.equal(f[..., 9] > 0, has[:, None].expand_as(f[..., 9]))
+    assert (f[:, :, ~cond.tgt_graph.mask[1]][1] == 0).all()  # tron1's padding
+    grot, has_rot = orientation_pairs(cond.eta, cond.goal_rot, cond.rot_mask)
+    assert has_rot[:, 0].all()  # the base's orientation is always tracked
+    torch.testing.assert_close(f[:, :, 0, 10:13], grot[:, :, 0, :, 0])
+    torch.testing.assert_close(f[:, :, 0, 13:16], grot[:, :, 0, :, 1])
+    # the goals reach the output: moving one node's goal changes the denoised sample
+    with torch.no_grad():
+        m.net.joint_head.weight.normal_(0, 0.5)
+        x = torch.randn(cond.shape)
+        d1 = m.denoise(x, 80.0, cond)
+        cond.goal_feats = f.clone()
+        cond.goal_feats[..., 0:3] += 0.3 * has[:, None, :, None]
+        d2 = m.denoise(x, 80.0, cond)
+    assert (d1 - d2).abs().max() > 1e-3
+
+
+def test_goal_prior_starts_at_the_goals_and_keeps_the_sample_at_low_noise():
+    """goal_prior: the untrained denoiser (F = 0) at high noise returns the base's goal pose and
+    every node's goal position (its nearest mapped ancestor's where it has none); at low noise D -> x."""
+    from mer_models.energy import keypoint_goals, orientation_pairs
+
+    m = RetargetModel(dataclasses.replace(MICRO, goal_input=True, goal_prior=True)).eval()
+    b = mixed_batch(("g1", "tron1"))
+    cond = m.conditions(b)
+    goals, has = keypoint_goals(cond.eta, cond.goal)
+    torch.manual_seed(3)
+    x = torch.randn(cond.shape) * 80
+    with torch.no_grad():
+        d = m.denoise(x, 80.0, cond)
+        out = m.decode(d, cond)
+    world = m.decode(cond.prior, cond)  # the prior decoded: the goals in world coordinates
+    assert (out["base_pos"] - world["base_pos"]).abs().max() < 0.02
+    grot, _ = orientation_pairs(cond.eta, cond.goal_rot, cond.rot_mask)
+    from mer_data.rotations import axis_angle_to_matrix
+
+    torch.testing.assert_close(axis_angle_to_matrix(cond.prior[:, :, 0, 0:3]), grot[:, :, 0], atol=1e-4, rtol=0)
+    pos = torch.cat([d[:, :, :1, 3:6], d[:, :, 1:, 1:4]], 2)  # position features (diffusion space, pos_scale 1)
+    mapped = has & cond.tgt_graph.mask
+    err = (pos - goals).norm(dim=-1)[:, :, mapped[1]][1]
+    assert err.max() < 0.02  # mapped nodes of the second sample sit at their goals
+    unmapped = (~has[1]) & cond.tgt_graph.mask[1]
+    assert unmapped.any()
+    j = int(torch.nonzero(unmapped)[0])
+    p = j
+    while not has[1, p]:
+        p = int(cond.tgt_graph.parents[1, p])
+    assert (pos[1, :, j] - goals[1, :, p]).norm(dim=-1).max() < 0.02
+    with torch.no_grad():
+        x = m.target_sample(b["target"], cond)
+        d = m.denoise(x, 0.002, cond)
+    live = d.clone()
+    live[:, :, 1:, 0] = x[:, :, 1:, 0]  # angles pass the limit clip; compare the linear channels
+    torch.testing.assert_close(live * cond.tgt_graph.mask[:, None, :, None], x * cond.tgt_graph.mask[:, None, :, None], atol=1e-3, rtol=0)

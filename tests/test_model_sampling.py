@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import math
 
+import pytest
 import torch
 
-from mer_models.config import EnergyConfig, SamplerConfig
+from mer_models.config import ConfigError, EnergyConfig, SamplerConfig
 from mer_models.inference import sample_conditions
 from mer_models.model import RetargetModel
 from mer_models.sampling import (
@@ -118,3 +119,31 @@ def test_guidance_scale_zero_is_the_identity():
     cond = model.conditions(b)
     d = torch.randn(cond.shape)
     assert EnergyGuidance(model, EnergyConfig(), 0.0)(d, torch.tensor(1.0), cond) is d
+
+
+def test_init_noise_zero_is_deterministic_and_a_goal_prior_model_starts_at_its_goals():
+    import dataclasses
+
+    torch.manual_seed(0)
+    model = RetargetModel(dataclasses.replace(MICRO, goal_input=True, goal_prior=True)).eval()
+    with torch.no_grad():
+        model.net.joint_head.weight.normal_(0, 0.5)
+    b = mixed_batch(("h1",))
+
+    def run(seed, noise, steps=2):
+        return sample_conditions(model, model.conditions(b), SamplerConfig(steps=steps, method="euler", init_noise=noise),
+                                 generator=torch.Generator().manual_seed(seed))  # fmt: skip
+
+    torch.testing.assert_close(run(1, 0.0), run(2, 0.0), rtol=0, atol=0)
+    assert (run(1, 1.0) - run(2, 1.0)).abs().max() > 1e-3
+    seen = []
+    cond = model.conditions(b)
+    orig = model.denoise
+    try:  # the sampler's first input is the goal prior itself
+        model.denoise = lambda x, s, c: (seen.append(x.clone()), orig(x, s, c))[1]
+        sample_conditions(model, cond, SamplerConfig(steps=1, method="euler", init_noise=0.0))
+    finally:
+        del model.denoise
+    torch.testing.assert_close(seen[0], model.goal_prior(cond), rtol=0, atol=0)
+    with pytest.raises(ConfigError, match="init_noise"):
+        SamplerConfig(init_noise=2.0)

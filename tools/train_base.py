@@ -65,10 +65,13 @@ def shards_step(work: Path) -> Path:
     return out
 
 
-def train_step(work: Path, shards: Path, minutes: float, lafan1: str | None, clock: str, init: str | None = None) -> Path:
+def train_step(work: Path, shards: Path, minutes: float, lafan1: str | None, clock: str, init: str | None = None,
+               lr_decay_steps: int = 0) -> Path:
     out = work / NAME
     cmd = [sys.executable, str(REPO / "tools" / "learning_curve.py"), "--config", "base", "--shards", str(shards), "--out", str(out),
            "--bf16", "--max-minutes", str(minutes), "--clock", clock, "--chunk-steps", "150"]  # fmt: skip
+    if lr_decay_steps:
+        cmd += ["--lr-decay-steps", str(lr_decay_steps)]
     if init:
         cmd += ["--init", init]
     if lafan1:
@@ -187,7 +190,7 @@ def reproduce_text(step: int) -> str:
         f"# training stops at a chunk boundary once MINUTES are spent (this checkpoint: step {step}); its steps:",
         f"mer shards build {' '.join(BUILD)} --out runs/{NAME}-shards",
         f"mer shards solve runs/{NAME}-shards",
-        f"python tools/learning_curve.py --config base --shards runs/{NAME}-shards --out runs/{NAME} --bf16 --max-minutes MINUTES --chunk-steps 150",
+        f"python tools/learning_curve.py --config base --shards runs/{NAME}-shards --out runs/{NAME} --bf16 --max-minutes MINUTES --chunk-steps 150 --lr-decay-steps 2400",
         *(f"mer evaluate --model runs/{NAME} --input LAFAN1_DIR --source {src} --targets {robots} --split {EVAL['split']} "
           f"--max-windows {EVAL['max_windows']} --refine {EVAL['refine']} --methods model refine optimize" for src in SOURCES),
         "# bundle and card a checkpoint (no training, no evaluation; reuses runs/" + EVALUATION_FILE + " if present):",
@@ -250,6 +253,8 @@ def main() -> int:
     ap.add_argument("--work", default=str(REPO / "runs"), help="where shards and the run go (default runs/)")
     ap.add_argument("--minutes", type=float, default=80.0, help="minutes of training in all (default 80)")
     ap.add_argument("--clock", choices=["cpu", "wall"], default="cpu", help="what --minutes counts (default: CPU time)")
+    ap.add_argument("--lr-decay-steps", type=int, default=2400,
+                    help="cosine learning-rate decay over this many steps after the warm-up (default 2400; 0: constant)")
     ap.add_argument("--lafan1", help="LAFAN1-layout folder for the evaluations (e.g. ../shared/data/lafan1)")
     ap.add_argument("--skip-train", action="store_true", help="evaluate and bundle the run as it is")
     ap.add_argument("--bundle-only", action="store_true",
@@ -270,7 +275,7 @@ def main() -> int:
     if not (args.skip_train or args.bundle_only):
         shards = shards_step(work)
         run_dir = train_step(work, shards, args.minutes, args.lafan1, args.clock,
-                             str(REPO / "mer_models" / "bundled" / NAME) if args.from_bundled else None)
+                             str(REPO / "mer_models" / "bundled" / NAME) if args.from_bundled else None, args.lr_decay_steps)
     metrics = None
     evaluation = work / EVALUATION_FILE
     if args.bundle_only:
