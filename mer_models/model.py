@@ -139,7 +139,11 @@ class RetargetModel(nn.Module):
         Per target node, from the joint map and the scaled reference (the goals of ``f_kin``):
         goal position / ``pos_scale``, the same relative to the base's goal, goal velocity /
         ``vel_scale``, a flag (the node has a position goal), its orientation goal's first two
-        columns and a flag (the node's orientation is tracked). Zero where a node has no goal.
+        columns and a flag (the node's orientation is tracked); zero where a node has no goal. Then,
+        in the frame of the base's orientation goal (what the joint angles are relative to): the
+        node's goal relative to the base's, and its *segment*: from the goal of its nearest mapped
+        ancestor to its own goal, or, for a node without one, to the mean goal of the mapped nodes
+        below it (what its joint must turn towards; zero if there are none).
         Computed once per :class:`Conditions` (no parameters).
         """
         if cond.goal_feats is not None:
@@ -159,9 +163,21 @@ class RetargetModel(nn.Module):
             has_rot = has_rot & cond.tgt_graph.mask
             rot6 = grot[..., :, :2].transpose(-1, -2).reshape(B, T, Jt, 6)
         mr = has_rot[:, None, :, None].to(goals.dtype)
+        g = cond.tgt_graph
+        base_rot = grot[:, :, 0] if cond.goal_rot is not None and cond.rot_mask is not None and bool(has_rot[:, 0].all()) else None
+        local = rel if base_rot is None else torch.einsum("btji,btnj->btni", base_rot, rel)  # R_b^T (g - g_0)
+        below = _descendants(g.parents) & g.mask[:, None, :] & has[:, None, :]  # (B, J, J): mapped nodes under (or at) j
+        count = below.sum(-1)
+        centroid = torch.einsum("bjk,btkd->btjd", below.to(local.dtype), local) / count.clamp_min(1)[:, None, :, None]
+        anc = _nearest_mapped_ancestor(g.parents, has)  # (B, J) strict ancestor with a goal (0: the base)
+        start = torch.gather(local, 2, anc[:, None, :, None].expand(B, T, Jt, 3))
+        end = torch.where(has[:, None, :, None], local, centroid)
+        seg = (end - start) * ((count > 0) & g.mask)[:, None, :, None].to(local.dtype)
+        seg[:, :, 0] = 0
         feats = torch.cat(
-            [goals / ps * m, rel / ps * m, vel / vs * m, m.expand(B, T, Jt, 1), rot6 * mr, mr.expand(B, T, Jt, 1)], -1
-        )
+            [goals / ps * m, rel / ps * m, vel / vs * m, m.expand(B, T, Jt, 1), rot6 * mr, mr.expand(B, T, Jt, 1),
+             local / ps * m, seg / ps], -1
+        )  # fmt: skip
         assert feats.shape[-1] == GOAL_DIM
         cond.goal_feats = feats
         return feats
@@ -269,3 +285,27 @@ class RetargetModel(nn.Module):
         from .pretrained import push_to_hub
 
         return push_to_hub(self, repo_id, **kwargs)
+
+
+def _descendants(parents: torch.Tensor) -> torch.Tensor:
+    """(B, J) parent indices (-1 at the root; parents before children) → (B, J, J) bool: ``k`` is ``j`` or below it."""
+    B, J = parents.shape
+    eye = torch.eye(J, dtype=torch.bool, device=parents.device).expand(B, J, J)
+    anc = eye.clone()  # anc[b, k, j]: j is an ancestor-or-self of k
+    for k in range(1, J):
+        p = parents[:, k].clamp_min(0)
+        anc[:, k] = anc[:, k] | anc[torch.arange(B, device=parents.device), p]
+    return anc.transpose(1, 2)
+
+
+def _nearest_mapped_ancestor(parents: torch.Tensor, has: torch.Tensor) -> torch.Tensor:
+    """(B, J) the nearest strict ancestor of each node that has a goal (the base, node 0, at worst)."""
+    B, J = parents.shape
+    idx = torch.arange(B, device=parents.device)
+    self_or = torch.zeros(B, J, dtype=torch.long, device=parents.device)  # nearest mapped ancestor-or-self
+    out = torch.zeros(B, J, dtype=torch.long, device=parents.device)
+    for k in range(1, J):
+        p = parents[:, k].clamp_min(0)
+        out[:, k] = self_or[idx, p]
+        self_or[:, k] = torch.where(has[:, k], torch.full_like(p, k), out[:, k])
+    return out

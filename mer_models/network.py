@@ -33,8 +33,9 @@ __all__ = ["RetargetNet", "sinusoids", "JOINT_OUT", "GOAL_DIM"]
 JOINT_OUT = 7  # a joint node's live features: angle, position (3), velocity (3)
 #: Channels of a target token's goal input (``ModelConfig.goal_input``; :meth:`RetargetModel.goal_features`):
 #: position (3), position relative to the base goal (3), velocity (3), flag (1), orientation as its
-#: first two columns (6), flag (1).
-GOAL_DIM = 17
+#: first two columns (6), flag (1), then in the base goal's frame: position relative to the base
+#: goal (3) and the segment from the nearest mapped ancestor's goal (3).
+GOAL_DIM = 23
 
 
 def sinusoids(n: int, dim: int, device=None) -> torch.Tensor:

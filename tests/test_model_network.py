@@ -136,6 +136,21 @@ def test_goal_features_give_each_node_its_scaled_reference_goal():
     assert has_rot[:, 0].all()  # the base's orientation is always tracked
     torch.testing.assert_close(f[:, :, 0, 10:13], grot[:, :, 0, :, 0])
     torch.testing.assert_close(f[:, :, 0, 13:16], grot[:, :, 0, :, 1])
+    # in the base goal's frame: the goal relative to the base's, and the segment from the nearest mapped ancestor
+    from mer_data.registry import get_skeleton
+
+    g1 = get_skeleton("g1")
+    R = grot[0, :, 0]  # (T, 3, 3) the base's orientation goal
+    local = torch.einsum("tji,tnj->tni", R, goals[0] - goals[0, :, :1])
+    torch.testing.assert_close(f[0, :, :, 17:20], local * has[0, None, :, None], atol=1e-5, rtol=0)
+    knee, hip = g1.keypoints["left_knee"], g1.keypoints["left_hip"]
+    torch.testing.assert_close(f[0, :, knee, 20:23], local[:, knee] - local[:, hip], atol=1e-5, rtol=0)
+    joint = int(g1.parents[knee])  # a joint between hip and knee with no goal of its own: towards the goals below it
+    assert not has[0, joint]
+    below = [k for k in range(g1.num_nodes) if has[0, k] and joint in g1.path_to_root(k)]
+    want = local[:, below].mean(1) - local[:, hip]
+    torch.testing.assert_close(f[0, :, joint, 20:23], want, atol=1e-5, rtol=0)
+    assert (f[:, :, 0, 20:23] == 0).all()
     # the goals reach the output: moving one node's goal changes the denoised sample
     with torch.no_grad():
         m.net.joint_head.weight.normal_(0, 0.5)

@@ -186,7 +186,9 @@ def test_optimiser_tracks_its_own_robot_closely_and_smoothly():
     out = optimize_motion(EnergyConfig(), g, b["joint_map"], b["ref_scaled_pos"], rot, goal_rot=b["ref_goal_rot"],
                           rot_mask=b["ref_rot_mask"], stats=stats)  # fmt: skip
     m = window_metrics(out, b, keypoints=get_skeleton("g1").keypoints)
-    assert m["g_mpbpe"][0] < 0.006 and m["mpboe"][0] < 0.05
+    # mpboe 0.054 rad with the temporal prior at 0.05 (0.02 gave < 0.05: the smoother motion gives up a little
+    # orientation; on LAFAN1 G1->G1 0.034 -> 0.040 rad, docs/model.md)
+    assert m["g_mpbpe"][0] < 0.006 and m["mpboe"][0] < 0.06
     assert m["kp/left_hand"][0] < 0.01
     truth = b["target"][0, :, 1:, 0]
     assert m["jerk_frame"][0] < 2 * float((truth[3:] - 3 * truth[2:-1] + 3 * truth[1:-2] - truth[:-3]).abs().mean()) + 1e-3

@@ -3,6 +3,8 @@ for every built-in robot as source and target, loads offline and retargets with 
 
 from __future__ import annotations
 
+import dataclasses
+
 import importlib.util
 import json
 import sys
@@ -13,6 +15,7 @@ import pytest
 from mer_data.registry import BUILTIN_ROBOTS, get_skeleton
 from mer_models import zoo
 from mer_models.cli import main
+from mer_models.config import preset
 from mer_models.zoo.fromckpt import card_from_checkpoint
 from mer_models.zoo.registry import Registry, bundled_dir
 
@@ -60,7 +63,7 @@ def test_the_bundled_checkpoint_covers_exactly_every_builtin_robot_as_source_and
     assert meta["robots"]["targets"] == expected and meta["robots"]["references"] == expected
     card = zoo.model_info(zoo.DEFAULT_MODEL).card
     assert card.targets == sorted(BUILTIN_ROBOTS) and card.robots["references"] == sorted(BUILTIN_ROBOTS)
-    assert meta["run"]["name"] == "base" and meta["run"]["sampler"]["steps"] == 4
+    assert meta["run"]["name"] == "base" and meta["run"]["sampler"] == dataclasses.asdict(preset("base").sampler)  # what ships
     assert _train_base().sampler_text(meta["run"]["sampler"]) in card.summary  # the sampler as the checkpoint has it
 
 

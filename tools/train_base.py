@@ -32,6 +32,7 @@ wrote), and renders the card. Replacing the bundled model with a newer checkpoin
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import shutil
@@ -81,6 +82,22 @@ def train_step(work: Path, shards: Path, minutes: float, lafan1: str | None, clo
     return out
 
 
+def sampler_step(run_dir: Path) -> dict[str, Any]:
+    """Give the run the ``base`` preset's sampler (sampling settings are not training state: a resumed
+    run takes the preset's too) before it is evaluated and bundled; returns it."""
+    from mer_data.atomic import atomic_write
+    from mer_models.config import preset
+
+    path = run_dir / "config.json"
+    meta = json.loads(path.read_text())
+    sampler = dataclasses.asdict(preset("base").sampler)
+    if meta["run"]["sampler"] != sampler:
+        print(f"sampler: {meta['run']['sampler']} -> {sampler}")
+        meta["run"]["sampler"] = sampler
+        atomic_write(path, (json.dumps(meta, indent=2, sort_keys=True) + "\n").encode())
+    return sampler
+
+
 def evaluate_step(run_dir: Path, lafan1: str) -> dict:
     from mer_models.checkpoint import load_checkpoint
     from mer_models.evaluate import EvalOptions, evaluate, format_table
@@ -96,14 +113,16 @@ def evaluate_step(run_dir: Path, lafan1: str) -> dict:
 
 
 _COLS = (("g_mpbpe", "E_g-mpbpe [m]"), ("mpboe", "E_mpboe [rad]"), ("jerk_frame", "E_smooth [rad/frame^3]"), ("limit_violation", "limit violation"))
-_METHOD = {"model": "model alone (4 Euler steps, 4 evaluations)", "refine": f"model + {EVAL['refine']} optimiser iterations",
+_METHOD = {"model": "model alone", "refine": f"model + {EVAL['refine']} optimiser iterations",
            "optimize": "optimiser (the teacher)"}  # fmt: skip
 
 
-def card_metrics(reports: dict) -> dict:
-    """source -> '<method>' -> robot -> column -> value, plus frames/s."""
+def card_metrics(reports: dict, sampler: dict[str, Any] | None = None) -> dict:
+    """source -> '<method>' -> robot -> column -> value, plus frames/s (and the sampler the model ran with)."""
     out: dict = {"data": "LAFAN1 robot CSVs (G1, H1), every clip: never seen in training (synthetic motion only)",
                  "windows per robot": EVAL["max_windows"]}  # fmt: skip
+    if sampler is not None:
+        out["model sampler"] = sampler_text(sampler)
     for src, rep in reports.items():
         for r in rep["rows"]:
             table = out.setdefault(f"source {src}, {_METHOD[r['method']]}", {})
@@ -139,7 +158,7 @@ def _require_synthetic(meta: dict, run_dir: Path) -> None:
                                fix="keep LAFAN1-trained weights outside the repository; bundle a run on synthetic shards")  # fmt: skip
 
 
-def bundle_step(run_dir: Path, metrics: dict | None) -> Path:
+def bundle_step(run_dir: Path, metrics: dict | None, history: str | None = None) -> Path:
     """Copy ``config.json`` (training metrics + ``metrics`` as its evaluation) and the weights of
     ``run_dir`` into ``mer_models/bundled/mer-base/``, replacing what is there atomically."""
     from mer_data.errors import PublishError
@@ -172,6 +191,8 @@ def bundle_step(run_dir: Path, metrics: dict | None) -> Path:
         "shards": f"tools/train_base.py: mer shards build {' '.join(BUILD)}",
         "motion": "synthetic motion generated in code (mer_data.synthesis), no third-party motion data",
     }
+    if history:
+        meta["data"]["history"] = history
     (tmp / "config.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
     shutil.copy2(run_dir / "model.safetensors", tmp / "model.safetensors")
     for f in tmp.iterdir():
@@ -202,7 +223,9 @@ def sampler_text(sampler: dict[str, Any]) -> str:
     """'4 Euler steps = 4 network evaluations' for a checkpoint's ``run.sampler`` (no ``method``: Heun, as the loader reads it)."""
     method, steps = sampler.get("method", "heun"), int(sampler["steps"])
     evals = 2 * steps - 1 if method == "heun" else steps  # Heun: the last step is an Euler step; euler/ancestral: one per step
-    return f"{steps} {method.capitalize()} steps = {evals} network evaluations"
+    text = f"{steps} {method.capitalize()} step{'s' if steps > 1 else ''} = {evals} network evaluation{'s' if evals > 1 else ''}"
+    noise = float(sampler.get("init_noise", 1.0))
+    return text + (", deterministic (no initial noise)" if noise == 0 else "" if noise == 1 else f", initial noise x{noise:g}")
 
 
 def _range(metrics: dict[str, Any], method: str) -> tuple[float, float]:
@@ -234,7 +257,7 @@ def card_step(folder: Path, metrics: dict[str, Any] | None) -> Path:
                "offline. Trained only on synthetic motion generated in code (no third-party motion data), with every "
                f"built-in robot ({', '.join(ROBOTS)}) as source (reference) and as target; the `{meta['run']['name']}` preset "
                f"(H = {model['hidden']}, {model['layers']} layers per decoder, {sampler_text(meta['run']['sampler'])}), "
-               f"trained for {step} steps; the teacher is "
+               f"trained for {step} steps{' (' + meta['data']['history'] + ')' if meta.get('data', {}).get('history') else ''}; the teacher is "
                f"the optimiser (`mer shards solve`). {evaluated}")
     note = DATASETS["synthetic"].note
     card = card_from_checkpoint(folder, name=NAME, status="bundled", summary=summary, license_note=note, reproduce=reproduce_text(step))
@@ -265,6 +288,8 @@ def main() -> int:
                     help="a new run (no WORK/mer-base yet) starts from the bundled mer-base weights, with a fresh optimiser: "
                     "how training continues in a session without the earlier run folder (exact resume needs that folder)")
     ap.add_argument("--no-bundle", action="store_true")
+    ap.add_argument("--history", help="how the run's starting weights were trained, when it started from other weights "
+                    "(--init): recorded in the bundle and said in the card")
     args = ap.parse_args()
     if args.bundle_only and args.no_bundle:
         ap.error("--bundle-only and --no-bundle contradict each other")
@@ -278,6 +303,7 @@ def main() -> int:
                              str(REPO / "mer_models" / "bundled" / NAME) if args.from_bundled else None, args.lr_decay_steps)
     metrics = None
     evaluation = work / EVALUATION_FILE
+    sampler = sampler_step(run_dir) if (run_dir / "config.json").is_file() else None  # (a missing run: bundle_step says so)
     if args.bundle_only:
         if evaluation.is_file():
             reports = json.loads(evaluation.read_text())
@@ -285,16 +311,21 @@ def main() -> int:
             if evaluated != {str(run_dir.resolve())}:
                 raise SystemExit(f"{evaluation} evaluates {', '.join(sorted(evaluated)) or 'no model'}, not {run_dir}: "
                                  f"bundle that run (--run), evaluate this one (--skip-train --lafan1 DIR), or move the file away")
-            metrics = card_metrics(reports)
+            if sampler is not None and any(r.get("sampler") != sampler for r in reports.values()):
+                raise SystemExit(f"{evaluation} was measured with another sampler than the one that ships ({sampler}): "
+                                 "evaluate again (--skip-train --lafan1 DIR)")
+            metrics = card_metrics(reports, sampler)
             print(f"evaluation: {evaluation}")
         else:
             print(f"evaluation: none ({evaluation} does not exist); the card holds the training metrics only")
     elif args.lafan1:
         reports = evaluate_step(run_dir, args.lafan1)
+        for r in reports.values():
+            r["sampler"] = sampler
         evaluation.write_text(json.dumps(reports, indent=2) + "\n")
-        metrics = card_metrics(reports)
+        metrics = card_metrics(reports, sampler)
     if not args.no_bundle:
-        card_step(bundle_step(run_dir, metrics), metrics)
+        card_step(bundle_step(run_dir, metrics, args.history), metrics)
     return 0
 
 
