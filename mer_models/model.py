@@ -169,7 +169,7 @@ class RetargetModel(nn.Module):
         below = _descendants(g.parents) & g.mask[:, None, :] & has[:, None, :]  # (B, J, J): mapped nodes under (or at) j
         count = below.sum(-1)
         centroid = torch.einsum("bjk,btkd->btjd", below.to(local.dtype), local) / count.clamp_min(1)[:, None, :, None]
-        anc = _nearest_mapped_ancestor(g.parents, has)  # (B, J) strict ancestor with a goal (0: the base)
+        anc, _ = _nearest_mapped_ancestor(g.parents, has)  # (B, J) strict ancestor with a goal (0: the base)
         start = torch.gather(local, 2, anc[:, None, :, None].expand(B, T, Jt, 3))
         end = torch.where(has[:, None, :, None], local, centroid)
         seg = (end - start) * ((count > 0) & g.mask)[:, None, :, None].to(local.dtype)
@@ -194,13 +194,8 @@ class RetargetModel(nn.Module):
         goals, has = keypoint_goals(cond.eta, cond.goal)  # (B, T, Jt, 3), (B, Jt)
         g = cond.tgt_graph
         has = has & g.mask
-        has[:, 0] = True
         B, T, Jt = goals.shape[:3]
-        src = torch.zeros(B, Jt, dtype=torch.long, device=goals.device)  # node whose goal stands in
-        idx = torch.arange(B, device=goals.device)
-        for j in range(1, Jt):  # parents come first (topological order)
-            p = g.parents[:, j].clamp_min(0)
-            src[:, j] = torch.where(has[:, j], torch.full_like(p, j), src[idx, p])
+        _, src = _nearest_mapped_ancestor(g.parents, has)  # node whose goal stands in (itself, an ancestor, the base)
         pos = torch.gather(goals, 2, src[:, None, :, None].expand(B, T, Jt, 3))
         vel = finite_difference(pos, cond.fps, dim=-3)
         prior = goals.new_zeros(B, T, Jt, 9)
@@ -298,8 +293,9 @@ def _descendants(parents: torch.Tensor) -> torch.Tensor:
     return anc.transpose(1, 2)
 
 
-def _nearest_mapped_ancestor(parents: torch.Tensor, has: torch.Tensor) -> torch.Tensor:
-    """(B, J) the nearest strict ancestor of each node that has a goal (the base, node 0, at worst)."""
+def _nearest_mapped_ancestor(parents: torch.Tensor, has: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(B, J) the nearest strict ancestor of each node that has a goal, and (B, J) the same counting
+    the node itself; the base (node 0) at worst."""
     B, J = parents.shape
     idx = torch.arange(B, device=parents.device)
     self_or = torch.zeros(B, J, dtype=torch.long, device=parents.device)  # nearest mapped ancestor-or-self
@@ -308,4 +304,4 @@ def _nearest_mapped_ancestor(parents: torch.Tensor, has: torch.Tensor) -> torch.
         p = parents[:, k].clamp_min(0)
         out[:, k] = self_or[idx, p]
         self_or[:, k] = torch.where(has[:, k], torch.full_like(p, k), out[:, k])
-    return out
+    return out, self_or
