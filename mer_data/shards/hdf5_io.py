@@ -119,7 +119,35 @@ class Hdf5ShardWriter:
             self.path.unlink(missing_ok=True)
 
 
-class Hdf5Shard:
+class ProcessLocalH5:
+    """A read-only HDF5 file at ``self.path`` with one handle per process: opened on first use in
+    each process (DataLoader workers fork or spawn after the parent opened it), closed by
+    :meth:`close`, pickled without the handle."""
+
+    path: Path
+    _file: h5py.File | None = None
+    _pid: int = -1
+
+    def _f(self) -> h5py.File:
+        import os
+
+        if self._file is None or self._pid != os.getpid():
+            self._file = h5py.File(self.path, "r")
+            self._pid = os.getpid()
+        return self._file
+
+    def close(self) -> None:
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+    def __getstate__(self):
+        d = dict(self.__dict__)
+        d["_file"], d["_pid"] = None, -1
+        return d
+
+
+class Hdf5Shard(ProcessLocalH5):
     """Read access to an HDF5 shard (opened lazily, once per process)."""
 
     format = "hdf5"
@@ -142,16 +170,6 @@ class Hdf5Shard:
             raise ShardFormatError(
                 f"cannot read the HDF5 shard ({exc})", path=self.path, fix="rebuild it with `mer shards build`"
             ) from None
-        self._file: h5py.File | None = None
-        self._pid = -1
-
-    def _f(self) -> h5py.File:
-        import os
-
-        if self._file is None or self._pid != os.getpid():  # one handle per process (DataLoader workers)
-            self._file = h5py.File(self.path, "r")
-            self._pid = os.getpid()
-        return self._file
 
     @property
     def num_rows(self) -> int:
@@ -171,13 +189,3 @@ class Hdf5Shard:
         """Rows ``start:stop`` of every column (a contiguous slice)."""
         f = self._f()
         return {c: (f[c].asstr()[start:stop] if COLUMNS[c] == "str" else f[c][start:stop]) for c in COLUMNS}
-
-    def close(self) -> None:
-        if self._file is not None:
-            self._file.close()
-            self._file = None
-
-    def __getstate__(self):  # pickles without the open handle (DataLoader workers reopen)
-        d = dict(self.__dict__)
-        d["_file"], d["_pid"] = None, -1
-        return d

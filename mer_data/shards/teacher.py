@@ -26,10 +26,8 @@ subfolder, so the shard folder's ``*.h5`` glob never mistakes it for a shard):
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
-import h5py
 import numpy as np
 import torch
 
@@ -38,6 +36,7 @@ from ..fk import apply_mimic, fk_skeleton, skeleton_tensors
 from ..rotations import axis_angle_to_matrix
 from ..skeleton import Skeleton
 from ..windows import window_features
+from .hdf5_io import ProcessLocalH5
 from .schema import ShardMeta
 
 __all__ = ["TEACHER_FORMAT", "TEACHER_VERSION", "TEACHER_DIR", "teacher_path", "TeacherFile", "teacher_features"]
@@ -53,18 +52,17 @@ def teacher_path(shard: str | Path, folder: str | Path | None = None) -> Path:
     return Path(folder if folder is not None else shard.parent / TEACHER_DIR) / f"{shard.stem}.h5"
 
 
-class TeacherFile:
-    """Read access to a complete teacher file, checked against its shard's metadata."""
+class TeacherFile(ProcessLocalH5):
+    """Read access to a complete teacher file, checked against its shard's metadata (one handle per process)."""
 
     def __init__(self, path: str | Path, meta: ShardMeta) -> None:
         self.path = Path(path)
-        self.file: h5py.File | None = None
         try:
-            self.file = h5py.File(self.path, "r")
+            f = self._f()
         except OSError as exc:
             raise ShardFormatError(f"cannot read the teacher file: {exc}", path=self.path,
                                    fix="solve again: mer shards solve SHARDS --force") from None  # fmt: skip
-        a = self.file.attrs
+        a = f.attrs
         if a.get("format") != TEACHER_FORMAT:
             raise ShardFormatError("not a mer teacher file", path=self.path)
         if int(a.get("format_version", -1)) != TEACHER_VERSION:
@@ -78,19 +76,12 @@ class TeacherFile:
                 fix="solve again: mer shards solve SHARDS --force",
             )
         S = meta.samples_per_row
-        if tuple(self.file["q"].shape[:2]) != (meta.num_rows, S) or self.file["q"].shape[2] != meta.window:
-            raise ShardFormatError(f"teacher arrays {self.file['q'].shape} do not fit the shard "
+        if tuple(f["q"].shape[:2]) != (meta.num_rows, S) or f["q"].shape[2] != meta.window:
+            raise ShardFormatError(f"teacher arrays {f['q'].shape} do not fit the shard "
                                    f"({meta.num_rows} rows x {S} samples x {meta.window} frames)", path=self.path)  # fmt: skip
-        self.solved = self.file["solved"][()]
-        self.energy = self.file["energy"][()]
+        self.solved = f["solved"][()]
+        self.energy = f["energy"][()]
         self.solver = json.loads(a["solver"])
-        self._pid = os.getpid()
-
-    def _f(self) -> h5py.File:
-        if self.file is None or self._pid != os.getpid():  # one handle per process (DataLoader workers)
-            self.file = h5py.File(self.path, "r")
-            self._pid = os.getpid()
-        return self.file
 
     def solution(self, row: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """(q (T, J), base_pos (T, 3), base_rotvec (T, 3)) of sample ``k`` of ``row``; None if unsolved."""
@@ -98,16 +89,6 @@ class TeacherFile:
             return None
         f = self._f()
         return f["q"][row, k], f["base_pos"][row, k], f["base_rotvec"][row, k]
-
-    def close(self) -> None:
-        if self.file is not None:
-            self.file.close()
-            self.file = None
-
-    def __getstate__(self):  # pickles without the open handle (DataLoader workers reopen)
-        d = dict(self.__dict__)
-        d["file"], d["_pid"] = None, -1
-        return d
 
 
 def teacher_features(skel: Skeleton, q: np.ndarray, base_pos: np.ndarray, base_rotvec: np.ndarray, fps: float) -> np.ndarray:
