@@ -13,7 +13,13 @@ scaled reference is a pose the target can actually reach.
   ``c_R``: the zero-pose pelvis centres in each root frame). So the base key point means the same
   body on every robot (Talos' root link sits 0.27 m above its hips, G1's 0.13 m).
 * *Hips* sit about ``c'`` and *shoulders* about the shoulder centre ``s'`` at the target's widths,
-  in the reference's directions. The shoulder centre is the target's own zero-pose trunk vector
+  in the reference's directions. A hip key point is a different body on different robots (G1: the
+  roll link, which the hip-pitch joint swings on a 3 cm arm; H1: the pitch link, which hip roll
+  swings on an 11.5 cm arm; TALOS: the point all three hip axes meet, which nothing moves), so how
+  it moves against the pelvis is transferred only between robots whose hip key points are moved by
+  the same sequence of joint axes (:func:`hip_signature`: G1 and Oli; a robot and its augmented
+  copies). Otherwise the pelvis is rigid: ``c`` is the reference's zero-pose pelvis centre carried by
+  its base, and the hips are the target's zero-pose hips carried by the reference's base. The shoulder centre is the target's own zero-pose trunk vector
   ``s_T - c_T`` turned by the reference trunk's rotation from its zero pose (a frame from the
   pelvis-to-shoulder vector and the shoulder line) and stretched as the reference's trunk is.
 * *Limbs* (hip → knee → ankle → toe, shoulder → elbow → hand): every segment is scaled by its own
@@ -69,9 +75,14 @@ __all__ = [
     "orientation_calibration",
     "orientation_goals",
     "ROOT_PART",
+    "SCALING_VERSION",
+    "hip_signature",
 ]
 
 ROOT_PART = "root"
+#: Version of the ``segments`` goals: teacher files record it (``mer shards solve`` re-solves on a
+#: change). 2: rigid pelvis between robots whose hips move differently (:func:`hip_signature`).
+SCALING_VERSION = 2
 ScalingMethod = Literal["segments", "parts"]
 SCALING_METHODS: tuple[str, ...] = ("segments", "parts")
 _FEET = ("left_ankle", "right_ankle", "left_toe", "right_toe")
@@ -201,6 +212,27 @@ def _scale_about_origin(p: np.ndarray, root: float, origin_xy) -> np.ndarray:
 
 
 # ---- segments ----------------------------------------------------------------------------------
+def hip_signature(skel: Skeleton, node: int, tol: float = 1e-3) -> tuple[int, ...]:
+    """The joints that move key node ``node`` against the base, base first: each joint's dominant
+    root-frame axis (0: x, 1: y, 2: z) at the zero pose.
+
+    A joint counts when ``node`` lies more than ``tol`` [m] off its axis (a joint whose axis passes
+    through the node only turns it). G1's hip (roll link) gives ``(1,)``, H1's (pitch link, after
+    yaw and roll) ``(2, 0)``, TALOS' (where its three hip axes meet) ``()``.
+    """
+    rest = skel.rest_positions
+    out = []
+    a = int(skel.parents[node])
+    while a > 0:
+        if skel.node_kinds[a] == "revolute":
+            axis = skel.axes[a] / max(float(np.linalg.norm(skel.axes[a])), 1e-12)
+            d = rest[node] - rest[a]
+            if float(np.linalg.norm(d - (d @ axis) * axis)) > tol:
+                out.append(int(np.argmax(np.abs(axis))))
+        a = int(skel.parents[a])
+    return tuple(reversed(out))
+
+
 @dataclass(frozen=True)
 class _SegmentPlan:
     """What :func:`scale_reference_positions` needs for one (reference, target) pair (zero-pose geometry)."""
@@ -217,6 +249,8 @@ class _SegmentPlan:
     segments: tuple[tuple[int, int, float], ...]  # (parent key node, key node, ratio) in chain order
     rigid: dict[int, np.ndarray]  # key node → target's zero-pose vector from its chain parent
     others: tuple[tuple[int, int, float], ...]  # (anchor node, node, ratio) for the non-key nodes
+    rigid_pelvis: bool = False  # the hips' motion against the pelvis does not transfer (hip_signature)
+    hips_ref: np.ndarray | None = None  # (2, 3) the reference's zero-pose hips, its root frame
 
 
 def _frame(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -302,8 +336,12 @@ def _segment_plan(ref: Skeleton, target: Skeleton, root: float | None = None) ->
         while a not in keyed:
             a = int(ref.parents[a])
         others.append((a, n, ratio_at[a]))
+    rigid_pelvis = bool(hips) and tgt_both(hipn) and any(
+        hip_signature(ref, kr[k]) != hip_signature(target, kt[k]) for k in hipn
+    )
     plan = _SegmentPlan(1.0, hips, centre_ref, centre_tgt, shoulders, trunk_ref, trunk_len, trunk_tgt, width,
-                        tuple(segments), rigid, tuple(others))  # fmt: skip
+                        tuple(segments), rigid, tuple(others), rigid_pelvis,
+                        rr[list(hips)].copy() if hips else None)  # fmt: skip
     if root is None:
         ref_stand = _standing(ref)
         centre_h = float(ref_stand[list(hips), 2].mean()) if hips else float(ref_stand[0, 2])
@@ -344,13 +382,19 @@ def _apply_segments(positions: np.ndarray, rotations: np.ndarray, plan: _Segment
     P = positions
     base_rot = rotations[..., 0, :, :]
     out = np.empty_like(P)
-    c = P[..., list(plan.hips), :].mean(-2) if plan.hips else P[..., 0, :]
+    if plan.rigid_pelvis:  # the reference's zero-pose pelvis carried by its base
+        c = P[..., 0, :] + np.einsum("...ij,j->...i", base_rot, plan.centre_ref)
+    else:
+        c = P[..., list(plan.hips), :].mean(-2) if plan.hips else P[..., 0, :]
     c_s = _scale_about_origin(c, plan.root, origin_xy)
     shift = np.einsum("...ij,j->...i", base_rot, plan.centre_tgt - plan.centre_ref)
     out[..., 0, :] = c_s + (P[..., 0, :] - c) - shift
     if plan.hips:
-        for n in plan.hips:
-            out[..., n, :] = c_s + plan.width[n] * (P[..., n, :] - c)
+        for i, n in enumerate(plan.hips):
+            if plan.rigid_pelvis:
+                out[..., n, :] = c_s + plan.width[n] * np.einsum("...ij,j->...i", base_rot, plan.hips_ref[i] - plan.centre_ref)
+            else:
+                out[..., n, :] = c_s + plan.width[n] * (P[..., n, :] - c)
     if plan.shoulders:
         l, r = plan.shoulders
         s = 0.5 * (P[..., l, :] + P[..., r, :])

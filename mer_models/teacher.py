@@ -33,6 +33,7 @@ from mer_data.errors import MerError, ShardFormatError
 from mer_data.locks import hold_locks
 from mer_data.rotations import matrix_to_axis_angle
 from mer_data.samples import collate
+from mer_data.scaling import SCALING_VERSION
 from mer_data.shards.dataset import ShardDataset
 from mer_data.shards.teacher import TEACHER_FORMAT, TEACHER_VERSION, teacher_path
 
@@ -55,6 +56,8 @@ class SolverConfig:
         gn_iters: most Levenberg-Marquardt iterations.
         scaling: reference scaling (``segments`` or ``parts``, :mod:`mer_data.scaling`).
         smooth: weight of the optimiser's temporal prior (:data:`mer_models.ik.DEFAULT_SMOOTH`).
+        scaling_version: :data:`mer_data.scaling.SCALING_VERSION` of the goals (a teacher of older
+            goals is solved again).
         batch: windows solved together.
     """
 
@@ -62,6 +65,7 @@ class SolverConfig:
     gn_iters: int = DEFAULT_GN_ITERS
     scaling: str = "segments"
     smooth: float = DEFAULT_SMOOTH
+    scaling_version: int = SCALING_VERSION
     batch: int = 64
 
     def to_json(self) -> str:

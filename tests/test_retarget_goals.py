@@ -15,6 +15,7 @@ from mer_data.rotations import axis_angle_to_matrix, rotation_angle_between
 from mer_data.samples import TrainingSample, collate
 from mer_data.scaling import (
     ORIENTED_KEYPOINTS,
+    hip_signature,
     orientation_calibration,
     orientation_goals,
     scale_reference_positions,
@@ -77,21 +78,44 @@ def test_scaled_segments_have_the_targets_lengths(source, target):
 
 
 def test_the_base_goal_means_the_pelvis_on_every_robot():
-    """Talos' root link sits higher above its hips than G1's: its base goal must too."""
+    """Talos' root link sits higher above its hips than G1's: its base goal must too. G1's hips
+    (swung by hip pitch) and Talos' (where its hip axes meet) move differently, so the pelvis is
+    rigid: the base goal is Talos' own root-to-pelvis offset, carried by the reference's base."""
     g1, talos = get_skeleton("g1"), get_skeleton("talos")
     w = synthetic_window("g1", 30, 0)
     b = collate([TrainingSample(w, g1, talos, joint_map(talos, g1))])
     pos = b["ref_scaled_pos"][0].double()
     hips = [g1.keypoints["left_hip"], g1.keypoints["right_hip"]]
     up = pos[:, 0] - pos[:, hips].mean(1)  # scaled base relative to the scaled pelvis centre
-    c_t = talos.rest_positions[[talos.keypoints["left_hip"], talos.keypoints["right_hip"]]].mean(0)  # pelvis centres,
-    c_r = g1.rest_positions[hips].mean(0)  # each in its robot's root frame
+    c_t = talos.rest_positions[[talos.keypoints["left_hip"], talos.keypoints["right_hip"]]].mean(0)  # root frame
     rot = axis_angle_to_matrix(torch.from_numpy(w[:, 0, 0:3]).double())
-    # per frame: the reference's base-to-pelvis vector, less the rotated difference of the pelvis offsets
+    torch.testing.assert_close(up, -(rot @ torch.from_numpy(c_t)[:, None])[..., 0], atol=1e-5, rtol=0)
     ref_up = torch.from_numpy(w[:, 0, 3:6]).double() - torch.from_numpy(w[:, hips, 1:4]).double().mean(1)
-    expect = ref_up - (rot @ torch.from_numpy(c_t - c_r)[:, None])[..., 0]
-    torch.testing.assert_close(up, expect, atol=1e-5, rtol=0)
     assert float(up[:, 2].mean()) > float(ref_up[:, 2].mean()) + 0.1  # Talos' base is 0.27 m above its hips
+
+
+def test_hip_signatures_of_the_built_in_robots():
+    sig = {r: hip_signature(get_skeleton(r), get_skeleton(r).keypoints["left_hip"]) for r in ROBOTS}
+    assert sig["g1"] == sig["oli"] == (1,)  # roll link, swung by hip pitch
+    assert sig["h1"] == (2, 0)  # pitch link, swung by hip yaw and roll
+    assert sig["h1_2"] == (2,)  # roll link on the pitch axis, swung by hip yaw only
+    assert sig["talos"] == ()  # all three hip axes meet at the key point
+
+
+@pytest.mark.parametrize(("source", "target", "rigid"), [("g1", "h1", True), ("h1", "talos", True), ("g1", "oli", False)])
+def test_hips_ride_with_the_base_unless_both_robots_hips_move_alike(source, target, rigid):
+    """Across hip chains that move the hip key point differently (G1 → H1), the hip goals are the
+    target's zero-pose hips carried by the reference's base; where both move alike (G1 → Oli) the
+    reference's hip motion against its pelvis is kept (in the base frame it varies with the pose)."""
+    ref, tgt = get_skeleton(source), get_skeleton(target)
+    p, r = _random_motion(ref, 6, 3)
+    out = scale_reference_positions(p, ref, tgt, rotations=r)
+    for side in ("left_hip", "right_hip"):
+        local = np.einsum("nji,nj->ni", r[:, 0], out[:, ref.keypoints[side]] - out[:, 0])  # base frame
+        if rigid:
+            np.testing.assert_allclose(local, np.broadcast_to(tgt.rest_positions[tgt.keypoints[side]], local.shape), atol=1e-9)
+        else:
+            assert float(local.std(0).max()) > 1e-3
 
 
 def test_paper_scaling_is_kept_for_comparison():
