@@ -219,6 +219,10 @@ class TrainConfig:
             coverage of the 1000-step cosine-schedule DDPM the paper's lineage trains with (EDM's
             image default N(-1.2, 1.2^2) leaves the high-noise regime, where retargeting is decided,
             almost untrained; docs/model.md).
+        start_frac: share of every batch trained at the sampler's own starting point instead of a
+            noise level drawn from ``N(p_mean, p_std^2)``: ``sigma = sigma_max`` and the sampler's
+            initial state (the goals plus ``init_noise * sigma_max`` noise for a ``goal_prior``
+            network). A one-step sampler only ever evaluates the network there (docs/model.md).
         opt_iters: refinement iterations of the optimisation baseline when it supplies ``x`` for a
             target without motion data (see docs/model.md).
         seed: seeds noise, data order and initialisation.
@@ -234,6 +238,7 @@ class TrainConfig:
     grad_clip: float = 1.0
     p_mean: float = 0.0
     p_std: float = 1.5
+    start_frac: float = 0.0
     opt_iters: int = 20
     seed: int = 0
     log_every: int = 10
@@ -245,6 +250,7 @@ class TrainConfig:
             _check(isinstance(getattr(self, name), int) and getattr(self, name) >= 1, c, name, "must be an integer >= 1")
         _check(self.lr > 0, c, "lr", "must be > 0")
         _check(self.p_std > 0, c, "p_std", "must be > 0")
+        _check(0.0 <= self.start_frac <= 1.0, c, "start_frac", f"start_frac={self.start_frac} must be in [0, 1]")
         _check(isinstance(self.warmup, int) and self.warmup >= 0, c, "warmup", "must be an integer >= 0")
         _check(isinstance(self.lr_decay_steps, int) and self.lr_decay_steps >= 0, c, "lr_decay_steps", "must be an integer >= 0")
         _check(0.0 <= self.lr_min_ratio <= 1.0, c, "lr_min_ratio", "must be in [0, 1]")
@@ -280,7 +286,7 @@ PRESETS: dict[str, RunConfig] = {
         name="base",
         model=ModelConfig(hidden=96, layers=2, heads=4, cross_heads_per_condition=1, ffn=256, dropout=0.0, goal_input=True, goal_prior=True),
         sampler=SamplerConfig(steps=1, method="euler", init_noise=0.0),
-        train=TrainConfig(batch_size=16, lr=7e-4, warmup=100, save_every=200, p_mean=2.0),
+        train=TrainConfig(batch_size=16, lr=7e-4, warmup=100, save_every=200, p_mean=2.0, start_frac=0.5),
     ),
 }
 
@@ -298,7 +304,7 @@ def preset(name: str) -> RunConfig:
 _SECTIONS = {"model": ModelConfig, "energy": EnergyConfig, "sampler": SamplerConfig, "train": TrainConfig}
 #: Fields added after checkpoints were first written, with the value that reproduces the older
 #: behaviour: a checkpoint without them loads with that value (and nothing else may be missing).
-_LEGACY = {ModelConfig: {"goal_input": False, "goal_prior": False}, EnergyConfig: {"w_ori": 0.0}, SamplerConfig: {"method": "heun", "init_noise": 1.0}, TrainConfig: {"lr_decay_steps": 0, "lr_min_ratio": 0.1}}
+_LEGACY = {ModelConfig: {"goal_input": False, "goal_prior": False}, EnergyConfig: {"w_ori": 0.0}, SamplerConfig: {"method": "heun", "init_noise": 1.0}, TrainConfig: {"lr_decay_steps": 0, "lr_min_ratio": 0.1, "start_frac": 0.0}}
 
 
 def _section(cls, data: Any, where: str):

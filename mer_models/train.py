@@ -133,6 +133,24 @@ def clean_samples(model: RetargetModel, batch: Mapping, cond: Conditions, run: R
     return x
 
 
+def _at_sampler_start(
+    model: RetargetModel, cond: Conditions, run: RunConfig, x_in: torch.Tensor, sigma: torch.Tensor, noise: torch.Tensor, k: int
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The first ``k`` samples of the batch moved to where the sampler starts (``start_frac``).
+
+    ``sigma = sigma_max`` and the input is the sampler's initial state: ``init_noise * sigma_max``
+    times the sample's unit noise, about the goals for a ``goal_prior`` network (as
+    :func:`mer_models.inference.sample_conditions` starts). The clean target is unchanged.
+    """
+    s_max = float(run.sampler.sigma_max)
+    unit = noise[:k] / sigma[:k].view(-1, 1, 1, 1)
+    start = unit * (run.sampler.init_noise * s_max)
+    if model.cfg.goal_prior:
+        start = start + model.goal_prior(cond)[:k].to(start.dtype)
+    sigma = torch.cat([torch.full_like(sigma[:k], s_max), sigma[k:]])
+    return torch.cat([start, x_in[k:]]), sigma
+
+
 def _dist() -> tuple[int, int]:
     world = int(os.environ.get("WORLD_SIZE", "1"))
     if world > 1 and not dist.is_initialized():
@@ -289,8 +307,12 @@ def train(
         B = x.shape[0]
         sigma = sample_sigma(B, run.train.p_mean, run.train.p_std, noise_gen, dev)
         noise = torch.randn(x.shape, generator=noise_gen, device=dev) * sigma.view(-1, 1, 1, 1)
+        x_in = x + noise
+        k = round(run.train.start_frac * B)
+        if k:
+            x_in, sigma = _at_sampler_start(model, cond, run, x_in, sigma, noise, k)
         with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=bf16):
-            d = net(x + noise, sigma, cond)
+            d = net(x_in, sigma, cond)
         d = d.float()
         l_edm = denoising_loss(d, x, sigma, run.model.sigma_data, cond.tgt_graph.mask)
         energy = model.energy(d, cond, run.energy)

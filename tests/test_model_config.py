@@ -7,7 +7,7 @@ import json
 import pytest
 
 from mer_data.errors import ConfigError
-from mer_models.config import ModelConfig, SamplerConfig, from_dict, preset
+from mer_models.config import ModelConfig, SamplerConfig, TrainConfig, from_dict, preset
 
 
 def test_paper_preset_is_the_papers_configuration():
@@ -81,6 +81,12 @@ def test_base_samples_with_few_euler_steps_and_old_checkpoints_load_with_heun():
 def test_base_takes_the_goals_and_old_checkpoints_load_without_them():
     run = preset("base")
     assert run.model.goal_input and run.model.goal_prior
+    assert run.train.start_frac == 0.5 and preset("paper").train.start_frac == 0.0
+    old = json.loads(json.dumps(run.to_dict()))
+    del old["train"]["start_frac"]  # written before the field existed: trained on EDM's noise only
+    assert from_dict(old).train.start_frac == 0.0
+    with pytest.raises(ConfigError, match="start_frac"):
+        TrainConfig(start_frac=1.5)
     assert not (preset("paper").model.goal_input or preset("paper").model.goal_prior)
     d = json.loads(json.dumps(run.to_dict()))
     assert from_dict(d).model.goal_input is True

@@ -199,3 +199,26 @@ def test_goal_prior_starts_at_the_goals_and_keeps_the_sample_at_low_noise():
     live = d.clone()
     live[:, :, 1:, 0] = x[:, :, 1:, 0]  # angles pass the limit clip; compare the linear channels
     torch.testing.assert_close(live * cond.tgt_graph.mask[:, None, :, None], x * cond.tgt_graph.mask[:, None, :, None], atol=1e-3, rtol=0)
+
+
+@pytest.mark.parametrize("init_noise", [0.0, 0.5])
+def test_start_frac_trains_where_the_sampler_starts(init_noise):
+    """TrainConfig.start_frac: the first k samples get sigma_max and the sampler's initial state (the
+    goals plus init_noise * sigma_max noise); the rest keep their noisy input and sigma."""
+    from mer_models.config import RunConfig, SamplerConfig
+    from mer_models.train import _at_sampler_start
+
+    m = RetargetModel(dataclasses.replace(MICRO, goal_input=True, goal_prior=True)).eval()
+    b = mixed_batch(("g1", "tron1", "h1"))
+    cond = m.conditions(b)
+    run = RunConfig(model=m.cfg, sampler=SamplerConfig(init_noise=init_noise, sigma_max=60.0))
+    torch.manual_seed(0)
+    x = torch.randn(cond.shape)
+    sigma = torch.tensor([0.5, 2.0, 7.0])
+    noise = torch.randn(cond.shape) * sigma.view(-1, 1, 1, 1)
+    x_in, s = _at_sampler_start(m, cond, run, x + noise, sigma, noise, 2)
+    torch.testing.assert_close(s, torch.tensor([60.0, 60.0, 7.0]))
+    prior = m.goal_prior(cond)
+    want = prior[:2] + init_noise * 60.0 * noise[:2] / sigma[:2].view(-1, 1, 1, 1)
+    torch.testing.assert_close(x_in[:2], want)
+    torch.testing.assert_close(x_in[2], (x + noise)[2])

@@ -62,6 +62,8 @@ def run_curve(cfg_name: str, args, out: Path, minutes: float) -> list[dict]:
         run = run.replace(train=dataclasses.replace(run.train, batch_size=args.batch_size))
     if args.lr_decay_steps:
         run = run.replace(train=dataclasses.replace(run.train, lr_decay_steps=args.lr_decay_steps))
+    if args.start_frac is not None:
+        run = run.replace(train=dataclasses.replace(run.train, start_frac=args.start_frac))
     run = run.replace(train=dataclasses.replace(run.train, save_every=args.chunk_steps, log_every=min(10, args.chunk_steps)))
     ds = ShardDataset(args.shards, teacher=True)
     curve_path = out.parent / f"{out.name}.learning_curve.jsonl"  # beside the folder: a checkpoint save replaces the folder
@@ -101,6 +103,7 @@ def main() -> int:
     ap.add_argument("--minutes-each", type=float, default=10.0, help="with --configs: CPU minutes per configuration")
     ap.add_argument("--batch-size", type=int, help="override the preset's batch size")
     ap.add_argument("--lr-decay-steps", type=int, help="cosine learning-rate decay over this many steps after the warm-up")
+    ap.add_argument("--start-frac", type=float, help="share of every batch trained at the sampler's starting point (TrainConfig.start_frac)")
     ap.add_argument("--init", metavar="DIR", help="start from this checkpoint's weights (fresh optimiser), e.g. the bundled "
                     "mer-base, to continue training in a session that lacks the run folder")
     ap.add_argument("--bf16", action="store_true", help="bfloat16 autocast (AMX on CPU)")
