@@ -86,6 +86,11 @@ def _robot_folder(root: Path, robot: str) -> Path | None:
     return d if d.is_dir() else None
 
 
+def _joints(skel) -> dict[str, int]:
+    """URDF joint name → node of every revolute joint (``at_limit/<joint>`` in the report)."""
+    return {n: i for i, (n, k) in enumerate(zip(skel.urdf_joint_names, skel.node_kinds)) if k == "revolute"}
+
+
 def collect_windows(input_dir: str | Path, source: str, opts: EvalOptions) -> dict[str, list[dict]]:
     """domain → windows ``{clip, start, reference (T, J, 9)}`` of the source robot."""
     from mer_data.motion_io import read_lafan1_csv
@@ -210,7 +215,7 @@ def evaluate(
                             motion = optimize_batch(opt_energy, batch, gn_iters=opts.refine, init=motion)
                     else:
                         motion = optimize_batch(opt_energy, batch, iters=opts.opt_iters, gn_iters=opts.opt_gn_iters)
-                    for k, v in window_metrics(motion, batch, keypoints={"base": 0, **tgt.keypoints}).items():
+                    for k, v in window_metrics(motion, batch, keypoints={"base": 0, **tgt.keypoints}, joints=_joints(tgt)).items():
                         vals.setdefault(k, []).append(v)
                 summary = summarize({k: np.concatenate(v) for k, v in vals.items()})
                 sec = time.time() - t0

@@ -43,11 +43,13 @@ from mer_data.rotations import rotation_angle_between
 from .energy import orientation_pairs, split_motion
 from .kinematics import BatchGraph, batch_fk, graph_from_batch
 
-__all__ = ["METRICS", "GT_METRICS", "window_metrics", "summarize", "LIMIT_TOL"]
+__all__ = ["METRICS", "GT_METRICS", "window_metrics", "summarize", "LIMIT_TOL", "AT_LIMIT_TOL"]
 
 METRICS = ("g_mpbpe", "mpboe", "mpbve", "jerk", "jerk_frame", "ref_jerk_frame", "limit_violation")
 GT_METRICS = ("gt_mpbpe", "gt_mpboe", "gt_mpbve")
 LIMIT_TOL = 1e-6
+#: A joint within this of a limit [rad] counts as held by it (``at_limit/<joint>``).
+AT_LIMIT_TOL = 2e-3
 
 
 def _mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -62,7 +64,11 @@ def _pair_index(eta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 def window_metrics(
-    motion: Mapping[str, torch.Tensor], batch: Mapping, fps: float = 30.0, keypoints: Mapping[str, int] | None = None
+    motion: Mapping[str, torch.Tensor],
+    batch: Mapping,
+    fps: float = 30.0,
+    keypoints: Mapping[str, int] | None = None,
+    joints: Mapping[str, int] | None = None,
 ) -> dict[str, np.ndarray]:
     """Metrics of retargeted windows.
 
@@ -72,6 +78,9 @@ def window_metrics(
         batch: the collated batch the motion was retargeted from.
         keypoints: key point name → target node (one target robot for the whole batch) to add
             the per-key-point errors ``kp/<name>``.
+        joints: joint name → target node (one target robot) to add ``at_limit/<name>``: the share
+            of frames the joint spends within :data:`AT_LIMIT_TOL` of a limit (which limits hold a
+            solution back).
 
     Returns:
         name → (B,) float64 per window (``gt_*`` are NaN where the batch has no target motion).
@@ -113,6 +122,9 @@ def window_metrics(
         out["jerk_frame"] = out["jerk"] = out["ref_jerk_frame"] = torch.full((B,), float("nan"), dtype=dt)
     outside = (q < tg.lower[:, None] - LIMIT_TOL) | (q > tg.upper[:, None] + LIMIT_TOL)
     out["limit_violation"] = (outside & dof[:, None]).any(-1).to(dt).mean(-1)
+    at = ((q - tg.lower[:, None]).abs() < AT_LIMIT_TOL) | ((q - tg.upper[:, None]).abs() < AT_LIMIT_TOL)
+    for name, i in (joints or {}).items():
+        out[f"at_limit/{name}"] = torch.where(dof[:, i], at[:, :, i].to(dt).mean(1), torch.full((B,), float("nan"), dtype=dt))
     has = batch["has_target"]
     nan = torch.full((B,), float("nan"), dtype=dt)
     out.update({k: nan.clone() for k in GT_METRICS})

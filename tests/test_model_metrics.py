@@ -60,6 +60,20 @@ def test_limit_violations_count_frames():
     assert np.isnan(m["gt_mpbpe"][0])  # no H1 data in this batch
 
 
+def test_frames_held_at_a_limit_are_counted_per_joint():
+    b = mixed_batch(("h1",))
+    mo = _motion(b)
+    mo["q"] = torch.zeros(1, 60, b["tgt_mask"].shape[1], dtype=torch.float64)
+    j, k = (int(i) for i in torch.nonzero(b["tgt_revolute"][0] & (b["tgt_lower"][0] < -0.01))[:2])
+    mo["q"][0, :30, j] = float(b["tgt_upper"][0, j]) - 1e-3  # half the frames at the upper limit
+    mo["q"][0, :, k] = float(b["tgt_lower"][0, k]) + 0.01  # near, not at, the lower limit
+    m = window_metrics(mo, b, joints={"a": j, "b": k, "base": 0})
+    assert m["at_limit/a"][0] == pytest.approx(0.5)
+    assert m["at_limit/b"][0] == 0.0
+    assert np.isnan(m["at_limit/base"][0])  # not a joint
+    assert m["limit_violation"][0] == 0.0
+
+
 def test_summary_ignores_missing_values():
     s = summarize({"a": np.array([1.0, 3.0, np.nan])})
     assert s["a"] == {"mean": 2.0, "std": 1.0, "n": 2}
