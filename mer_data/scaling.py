@@ -19,9 +19,10 @@ scaled reference is a pose the target can actually reach.
   it moves against the pelvis is transferred only between robots whose hip key points are moved by
   the same sequence of joint axes (:func:`hip_signature`: G1 and Oli; a robot and its augmented
   copies). Otherwise the pelvis is rigid: ``c`` is the reference's zero-pose pelvis centre carried by
-  its base, and the hips are the target's zero-pose hips carried by the reference's base. The shoulder centre is the target's own zero-pose trunk vector
-  ``s_T - c_T`` turned by the reference trunk's rotation from its zero pose (a frame from the
-  pelvis-to-shoulder vector and the shoulder line) and stretched as the reference's trunk is.
+  its base, and the hips are the target's zero-pose hips carried by the reference's base. The
+  shoulder centre is the target's own zero-pose trunk vector ``s_T - c_T`` turned by the
+  reference trunk's rotation from its zero pose (a frame from the pelvis-to-shoulder vector and
+  the shoulder line) and stretched as the reference's trunk is.
 * *Limbs* (hip → knee → ankle → toe, shoulder → elbow → hand): every segment is scaled by its own
   ratio ``|b_T - a_T| / |b_R - a_R|`` of zero-pose lengths, keeping the reference's direction.
   A foot segment that is rigid in the reference (no joint between ankle and toe) is the target's
