@@ -251,7 +251,7 @@ class _SegmentPlan:
     rigid: dict[int, np.ndarray]  # key node → target's zero-pose vector from its chain parent
     others: tuple[tuple[int, int, float], ...]  # (anchor node, node, ratio) for the non-key nodes
     rigid_pelvis: bool = False  # the hips' motion against the pelvis does not transfer (hip_signature)
-    hips_ref: np.ndarray | None = None  # (2, 3) the reference's zero-pose hips, its root frame
+    hip_offsets: np.ndarray | None = None  # (2, 3) pelvis centre → zero-pose hip at the target's width (root frame)
 
 
 def _frame(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -342,7 +342,7 @@ def _segment_plan(ref: Skeleton, target: Skeleton, root: float | None = None) ->
     )
     plan = _SegmentPlan(1.0, hips, centre_ref, centre_tgt, shoulders, trunk_ref, trunk_len, trunk_tgt, width,
                         tuple(segments), rigid, tuple(others), rigid_pelvis,
-                        rr[list(hips)].copy() if hips else None)  # fmt: skip
+                        np.stack([width[n] * (rr[n] - centre_ref) for n in hips]) if hips else None)  # fmt: skip
     if root is None:
         ref_stand = _standing(ref)
         centre_h = float(ref_stand[list(hips), 2].mean()) if hips else float(ref_stand[0, 2])
@@ -393,7 +393,7 @@ def _apply_segments(positions: np.ndarray, rotations: np.ndarray, plan: _Segment
     if plan.hips:
         for i, n in enumerate(plan.hips):
             if plan.rigid_pelvis:
-                out[..., n, :] = c_s + plan.width[n] * np.einsum("...ij,j->...i", base_rot, plan.hips_ref[i] - plan.centre_ref)
+                out[..., n, :] = c_s + np.einsum("...ij,j->...i", base_rot, plan.hip_offsets[i])
             else:
                 out[..., n, :] = c_s + plan.width[n] * (P[..., n, :] - c)
     if plan.shoulders:

@@ -134,17 +134,16 @@ def clean_samples(model: RetargetModel, batch: Mapping, cond: Conditions, run: R
 
 
 def _at_sampler_start(
-    model: RetargetModel, cond: Conditions, run: RunConfig, x_in: torch.Tensor, sigma: torch.Tensor, noise: torch.Tensor, k: int
+    model: RetargetModel, cond: Conditions, run: RunConfig, x_in: torch.Tensor, sigma: torch.Tensor, unit: torch.Tensor, k: int
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """The first ``k`` samples of the batch moved to where the sampler starts (``start_frac``).
 
     ``sigma = sigma_max`` and the input is the sampler's initial state: ``init_noise * sigma_max``
-    times the sample's unit noise, about the goals for a ``goal_prior`` network (as
-    :func:`mer_models.inference.sample_conditions` starts). The clean target is unchanged.
+    times the sample's unit noise ``unit`` (B, T, J, 9), about the goals for a ``goal_prior``
+    network (as :func:`mer_models.inference.sample_conditions` starts). The clean target is unchanged.
     """
     s_max = float(run.sampler.sigma_max)
-    unit = noise[:k] / sigma[:k].view(-1, 1, 1, 1)
-    start = unit * (run.sampler.init_noise * s_max)
+    start = unit[:k] * (run.sampler.init_noise * s_max)
     if model.cfg.goal_prior:
         start = start + model.goal_prior(cond)[:k].to(start.dtype)
     sigma = torch.cat([torch.full_like(sigma[:k], s_max), sigma[k:]])
@@ -306,11 +305,11 @@ def train(
         x = clean_samples(model, batch, cond, run)
         B = x.shape[0]
         sigma = sample_sigma(B, run.train.p_mean, run.train.p_std, noise_gen, dev)
-        noise = torch.randn(x.shape, generator=noise_gen, device=dev) * sigma.view(-1, 1, 1, 1)
-        x_in = x + noise
+        unit = torch.randn(x.shape, generator=noise_gen, device=dev)
+        x_in = x + unit * sigma.view(-1, 1, 1, 1)
         k = round(run.train.start_frac * B)
         if k:
-            x_in, sigma = _at_sampler_start(model, cond, run, x_in, sigma, noise, k)
+            x_in, sigma = _at_sampler_start(model, cond, run, x_in, sigma, unit, k)
         with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=bf16):
             d = net(x_in, sigma, cond)
         d = d.float()
