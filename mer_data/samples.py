@@ -156,6 +156,16 @@ def collate(samples: Sequence[TrainingSample], *, scaling: ScalingMethod = "segm
     batch["ref_scaled_pos"] = torch.zeros(B, T, Jr, 3)
     batch["ref_goal_rot"] = torch.eye(3).expand(B, T, Jr, 3, 3).clone()
     batch["ref_rot_mask"] = torch.zeros(B, Jr, dtype=torch.bool)
+    groups: dict[tuple[int, int], list[int]] = {}  # samples sharing a (reference, target) skeleton pair
+    for b, s in enumerate(samples):
+        groups.setdefault((id(s.reference_skeleton), id(s.target_skeleton)), []).append(b)
+    for idx in groups.values():  # the goals are per frame: one call on the group's frames stacked
+        s0, jr = samples[idx[0]], samples[idx[0]].reference.shape[1]
+        frames = np.concatenate([np.asarray(samples[b].reference, np.float64) for b in idx])
+        scaled, goal_rot, rot_mask = reference_goals(frames, s0.reference_skeleton, s0.target_skeleton, scaling=scaling)
+        batch["ref_scaled_pos"][idx, :, :jr] = torch.from_numpy(scaled.reshape(len(idx), T, jr, 3)).float()
+        batch["ref_goal_rot"][idx, :, :jr] = torch.from_numpy(goal_rot.reshape(len(idx), T, jr, 3, 3)).float()
+        batch["ref_rot_mask"][idx, :jr] = torch.from_numpy(rot_mask)
     for b, s in enumerate(samples):
         jr, jt = s.reference.shape[1], s.target_skeleton.num_nodes
         batch["reference"][b, :, :jr] = torch.from_numpy(np.asarray(s.reference, np.float32))
@@ -166,10 +176,6 @@ def collate(samples: Sequence[TrainingSample], *, scaling: ScalingMethod = "segm
             batch["teacher"][b, :, :jt] = torch.from_numpy(np.asarray(s.teacher, np.float32))
             batch["has_teacher"][b] = True
         batch["joint_map"][b, :jt, :jr] = torch.from_numpy(s.joint_map.astype(np.float32))
-        scaled, goal_rot, rot_mask = reference_goals(s.reference, s.reference_skeleton, s.target_skeleton, scaling=scaling)
-        batch["ref_scaled_pos"][b, :, :jr] = torch.from_numpy(scaled)
-        batch["ref_goal_rot"][b, :, :jr] = torch.from_numpy(goal_rot)
-        batch["ref_rot_mask"][b, :jr] = torch.from_numpy(rot_mask)
     batch["ref_names"] = [s.name for s in refs]
     batch["tgt_names"] = [s.name for s in tgts]
     batch["provenance"] = [dict(s.provenance) for s in samples]

@@ -303,7 +303,14 @@ class Skeleton:
         return cls(**kw)
 
     def to_json(self) -> str:
-        return json.dumps(self.to_dict(), sort_keys=True)
+        """Canonical JSON (sorted keys). Computed once per object: a skeleton is immutable (read-only
+        arrays; ``keypoints``/``locked`` are never changed in place), and equality, hashing and
+        :attr:`fingerprint` all go through it (collate hashes skeleton pairs for every sample)."""
+        text = self.__dict__.get("_json")
+        if text is None:
+            text = json.dumps(self.to_dict(), sort_keys=True)
+            object.__setattr__(self, "_json", text)
+        return text
 
     @classmethod
     def from_json(cls, text: str) -> "Skeleton":

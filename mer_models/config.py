@@ -162,7 +162,7 @@ class EnergyConfig:
             _check(math.isfinite(v) and v >= 0, "EnergyConfig", f.name, "must be a finite number >= 0")
 
 
-SAMPLER_METHODS = ("heun", "euler", "ancestral")
+SAMPLER_METHODS = ("heun", "euler", "ancestral", "feedback")
 
 
 @dataclass(frozen=True)
@@ -179,7 +179,12 @@ class SamplerConfig:
             ``ancestral``. With few steps Heun's corrector is unstable for an imperfect denoiser: its
             slope at the next, much smaller sigma is multiplied by the whole step (measured on
             ``mer-base`` at 300 steps: Heun 2 steps put the base 94 m off, Euler 1-8 steps 0.35 m),
-            so few-step presets use ``euler`` (docs/model.md).
+            so few-step presets use ``euler`` (docs/model.md). ``feedback``: learned iterative
+            refinement, ``steps`` network evaluations: the first at ``sigma_max`` from the sampler's
+            start, every further one at ``feedback_sigma`` on the previous estimate made kinematically
+            consistent (its position and velocity features recomputed by FK of its angles and base
+            pose), for models trained with ``TrainConfig.feedback_frac`` (docs/model.md).
+        feedback_sigma: the noise level the ``feedback`` sampler's refinement evaluations run at.
         init_noise: scale of the initial noise (1: EDM's ``sigma_max * N(0, I)``; 0: start at the
             noise distribution's mean, a deterministic retargeting). Models with ``goal_prior`` start
             at their goals plus that noise. Checkpoints written before it existed load with 1.
@@ -193,6 +198,7 @@ class SamplerConfig:
     overlap: int = 10
     method: str = "heun"
     init_noise: float = 1.0
+    feedback_sigma: float = 0.3
 
     def __post_init__(self) -> None:
         c = "SamplerConfig"
@@ -202,6 +208,7 @@ class SamplerConfig:
         _check(0 < self.sigma_min < self.sigma_max, c, "sigma_min", "need 0 < sigma_min < sigma_max")
         _check(self.rho > 0, c, "rho", "must be > 0")
         _check(self.guidance >= 0, c, "guidance", "must be >= 0")
+        _check(0 < self.feedback_sigma < self.sigma_max, c, "feedback_sigma", "need 0 < feedback_sigma < sigma_max")
         _check(isinstance(self.overlap, int) and self.overlap >= 1, c, "overlap", "must be an integer >= 1")
         _check_finite(self)
 
@@ -223,6 +230,11 @@ class TrainConfig:
             noise level drawn from ``N(p_mean, p_std^2)``: ``sigma = sigma_max`` and the sampler's
             initial state (the goals plus ``init_noise * sigma_max`` noise for a ``goal_prior``
             network). A one-step sampler only ever evaluates the network there (docs/model.md).
+        feedback_frac: share of every batch trained where the ``feedback`` sampler's second
+            evaluation runs: the input is the network's own (gradient-free) estimate from the
+            sampler's start, made kinematically consistent, at ``sigma = sampler.feedback_sigma``;
+            the network learns to correct its own errors (docs/model.md). These samples follow the
+            ``start_frac`` ones; ``start_frac + feedback_frac <= 1``.
         opt_iters: refinement iterations of the optimisation baseline when it supplies ``x`` for a
             target without motion data (see docs/model.md).
         seed: seeds noise, data order and initialisation.
@@ -239,6 +251,7 @@ class TrainConfig:
     p_mean: float = 0.0
     p_std: float = 1.5
     start_frac: float = 0.0
+    feedback_frac: float = 0.0
     opt_iters: int = 20
     seed: int = 0
     log_every: int = 10
@@ -251,6 +264,8 @@ class TrainConfig:
         _check(self.lr > 0, c, "lr", "must be > 0")
         _check(self.p_std > 0, c, "p_std", "must be > 0")
         _check(0.0 <= self.start_frac <= 1.0, c, "start_frac", f"start_frac={self.start_frac} must be in [0, 1]")
+        _check(0.0 <= self.feedback_frac <= 1.0 - self.start_frac, c, "feedback_frac",
+               f"feedback_frac={self.feedback_frac} must be in [0, 1 - start_frac = {1 - self.start_frac:g}]")
         _check(isinstance(self.warmup, int) and self.warmup >= 0, c, "warmup", "must be an integer >= 0")
         _check(isinstance(self.lr_decay_steps, int) and self.lr_decay_steps >= 0, c, "lr_decay_steps", "must be an integer >= 0")
         _check(0.0 <= self.lr_min_ratio <= 1.0, c, "lr_min_ratio", "must be in [0, 1]")
@@ -304,7 +319,7 @@ def preset(name: str) -> RunConfig:
 _SECTIONS = {"model": ModelConfig, "energy": EnergyConfig, "sampler": SamplerConfig, "train": TrainConfig}
 #: Fields added after checkpoints were first written, with the value that reproduces the older
 #: behaviour: a checkpoint without them loads with that value (and nothing else may be missing).
-_LEGACY = {ModelConfig: {"goal_input": False, "goal_prior": False}, EnergyConfig: {"w_ori": 0.0}, SamplerConfig: {"method": "heun", "init_noise": 1.0}, TrainConfig: {"lr_decay_steps": 0, "lr_min_ratio": 0.1, "start_frac": 0.0}}
+_LEGACY = {ModelConfig: {"goal_input": False, "goal_prior": False}, EnergyConfig: {"w_ori": 0.0}, SamplerConfig: {"method": "heun", "init_noise": 1.0, "feedback_sigma": 0.3}, TrainConfig: {"lr_decay_steps": 0, "lr_min_ratio": 0.1, "start_frac": 0.0, "feedback_frac": 0.0}}
 
 
 def _section(cls, data: Any, where: str):

@@ -18,11 +18,20 @@ from .kinematics import graph_from_batch
 from .model import Conditions, RetargetModel
 from .ik import DEFAULT_SMOOTH
 from .optimize import DEFAULT_GN_ITERS, DEFAULT_ITERS, optimize_motion
-from .sampling import CountingDenoiser, EnergyGuidance, karras_sigmas, sample_euler, sample_euler_ancestral, sample_heun
+from .sampling import (
+    CountingDenoiser,
+    EnergyGuidance,
+    feedback_sigmas,
+    karras_sigmas,
+    sample_euler,
+    sample_euler_ancestral,
+    sample_feedback,
+    sample_heun,
+)
 
 __all__ = ["SAMPLERS", "sample_conditions", "sample_batch", "optimize_batch", "initial_noise"]
 
-SAMPLERS = {"heun": sample_heun, "euler": sample_euler, "ancestral": sample_euler_ancestral}
+SAMPLERS = {"heun": sample_heun, "euler": sample_euler, "ancestral": sample_euler_ancestral, "feedback": sample_feedback}
 
 
 def initial_noise(shape, sigma_max: float, generator: torch.Generator | None, device) -> torch.Tensor:
@@ -53,7 +62,10 @@ def sample_conditions(
     if method not in SAMPLERS:
         raise ValueError(f"unknown sampler {method!r}; known: {', '.join(SAMPLERS)}")
     dev = cond.rot.device
-    sigmas = karras_sigmas(steps or sampler.steps, sampler.sigma_min, sampler.sigma_max, sampler.rho, device=dev)
+    if method == "feedback":
+        sigmas = feedback_sigmas(steps or sampler.steps, sampler.sigma_max, sampler.feedback_sigma, device=dev)
+    else:
+        sigmas = karras_sigmas(steps or sampler.steps, sampler.sigma_min, sampler.sigma_max, sampler.rho, device=dev)
     den = CountingDenoiser(model.denoise)
     fn = denoiser_wrapper(den) if denoiser_wrapper is not None else den
     guidance = None
@@ -64,7 +76,7 @@ def sample_conditions(
     x = initial_noise(cond.shape, float(sigmas[0]), generator, dev) * sampler.init_noise
     if model.cfg.goal_prior:  # residual diffusion: the noise is about the goals
         x = x + model.goal_prior(cond)
-    kw = {"generator": generator} if method == "ancestral" else {}
+    kw = {"generator": generator} if method == "ancestral" else {"project": model.project} if method == "feedback" else {}
     with torch.no_grad():
         model.encode(cond)
         out = SAMPLERS[method](fn, x, sigmas, cond, guidance=guidance, **kw)

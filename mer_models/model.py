@@ -27,7 +27,7 @@ from mer_data.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 from .config import EnergyConfig, ModelConfig
 from .edm import combine, precondition
 from .energy import f_kin, keypoint_goals, orientation_pairs
-from .kinematics import BatchGraph, graph_from_batch
+from .kinematics import BatchGraph, batch_features, graph_from_batch
 from .network import GOAL_DIM, RetargetNet
 from .representation import (
     base_origin,
@@ -236,6 +236,17 @@ class RetargetModel(nn.Module):
     def energy(self, d: torch.Tensor, cond: Conditions, ecfg: EnergyConfig) -> dict[str, torch.Tensor]:
         """``f_kin`` terms of a denoised sample (B,) each (:func:`mer_models.energy.f_kin`)."""
         return f_kin(ecfg, cond.tgt_graph, self.physical(d), cond.eta, cond.goal, cond.fps, cond.goal_rot, cond.rot_mask)
+
+    def project(self, d: torch.Tensor, cond: Conditions) -> torch.Tensor:
+        """A denoised sample made kinematically consistent (B, T, Jt, 9), diffusion space: its joint
+        angles and base pose kept, every position and velocity feature recomputed by FK of them
+        (what the ``feedback`` sampler feeds back; the angles are the motion, :meth:`decode`)."""
+        p = self.physical(d)
+        q = torch.cat([torch.zeros_like(p[..., :1, 0]), p[..., 1:, 0]], -1) * cond.tgt_graph.revolute[:, None]
+        feats = batch_features(cond.tgt_graph, q, p[..., 0, 3:6], axis_angle_to_matrix(p[..., 0, 0:3]), cond.fps)
+        base = torch.cat([p[..., :1, 0:3], feats[..., :1, 3:]], -1)  # the base keeps its own (unwrapped) rotation vector
+        feats = torch.cat([base, feats[..., 1:, :]], 2)
+        return normalize(feats, self.cfg) * cond.tgt_graph.mask[:, None, :, None].to(d.dtype)
 
     def decode(self, d: torch.Tensor, cond: Conditions) -> dict[str, torch.Tensor]:
         """A denoised sample → world motion.

@@ -17,6 +17,10 @@ Alg. 1, deterministic, ``2 N - 1`` network evaluations for N steps; the last ste
 returns the denoised estimate itself, so joint limits hold exactly), :func:`sample_euler` (first
 order, one evaluation per step) and :func:`sample_euler_ancestral` (stochastic, DDPM-like); with
 1000 steps the latter two are the paper's 1000-step regime, kept for comparison.
+:func:`sample_feedback` (schedule :func:`feedback_sigmas`) is not an ODE solver: learned iterative
+refinement, each evaluation after the first correcting the previous estimate made consistent by
+``project`` (``RetargetModel.project``), for models trained on their own estimates
+(``TrainConfig.feedback_frac``).
 """
 
 from __future__ import annotations
@@ -34,6 +38,8 @@ __all__ = [
     "sample_heun",
     "sample_euler",
     "sample_euler_ancestral",
+    "feedback_sigmas",
+    "sample_feedback",
     "EnergyGuidance",
     "CountingDenoiser",
 ]
@@ -102,6 +108,42 @@ def sample_euler(
         if callback is not None:
             callback({"i": i, "sigma": s, "x": x, "denoised": d})
     return x
+
+
+def feedback_sigmas(n: int, sigma_max: float, feedback_sigma: float, device=None) -> torch.Tensor:
+    """The ``feedback`` schedule: ``sigma_max``, then ``n - 1`` times ``feedback_sigma``, then 0; (n + 1,)."""
+    sig = [float(sigma_max)] + [float(feedback_sigma)] * (n - 1) + [0.0]
+    return torch.tensor(sig, dtype=torch.float32, device=device)
+
+
+@torch.no_grad()
+def sample_feedback(
+    denoiser: Denoiser,
+    x: torch.Tensor,
+    sigmas: torch.Tensor,
+    cond: object,
+    *,
+    project: Callable[[torch.Tensor, object], torch.Tensor],
+    guidance: Callable | None = None,
+    callback: Callable | None = None,
+    disable: bool = True,
+) -> torch.Tensor:
+    """Learned iterative refinement: ``d = D(x, sigmas[0])``, then ``d = D(project(d), sigma_i)`` for
+    every further positive ``sigma_i`` (:func:`feedback_sigmas`); returns the last estimate.
+
+    ``project(d, cond)`` maps an estimate to the input the network was trained to correct (the
+    estimate made kinematically consistent, ``RetargetModel.project``). One evaluation per sigma.
+    """
+    n = int((sigmas > 0).sum())
+    d = _denoised(denoiser, x, sigmas[0], cond, guidance)
+    if callback is not None:
+        callback({"i": 0, "sigma": sigmas[0], "x": x, "denoised": d})
+    for i in trange(1, n, disable=disable, desc="feedback"):
+        x = project(d, cond)
+        d = _denoised(denoiser, x, sigmas[i], cond, guidance)
+        if callback is not None:
+            callback({"i": i, "sigma": sigmas[i], "x": x, "denoised": d})
+    return d
 
 
 @torch.no_grad()

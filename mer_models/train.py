@@ -50,7 +50,7 @@ from .representation import normalize, transform_features
 
 log = logging.getLogger(__name__)
 
-__all__ = ["train", "TrainResult", "clean_samples", "LOG_FILE"]
+__all__ = ["train", "TrainResult", "clean_samples", "native_bf16", "LOG_FILE"]
 
 LOG_FILE = "train_log.jsonl"
 
@@ -150,6 +150,44 @@ def _at_sampler_start(
     return torch.cat([start, x_in[k:]]), sigma
 
 
+def _at_feedback(
+    model: RetargetModel, cond: Conditions, run: RunConfig, x_in: torch.Tensor, sigma: torch.Tensor, unit: torch.Tensor,
+    k: int, kf: int, bf16: bool,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Samples ``k .. k + kf`` of the batch moved to where the ``feedback`` sampler's second evaluation
+    runs (``feedback_frac``): ``sigma = feedback_sigma`` and the input is the network's own estimate
+    from the sampler's start, without gradient, made kinematically consistent (:meth:`RetargetModel.project`).
+
+    The first evaluation runs on the whole batch (the conditions are batched), under the training's
+    autocast; the reference encoding it caches is dropped, so the trained evaluation encodes again
+    with gradients. The clean target is unchanged.
+    """
+    s_max = float(run.sampler.sigma_max)
+    start = unit * (run.sampler.init_noise * s_max)
+    if model.cfg.goal_prior:
+        start = start + model.goal_prior(cond).to(start.dtype)
+    with torch.no_grad(), torch.autocast(x_in.device.type, dtype=torch.bfloat16, enabled=bf16):
+        d = model.denoise(start, s_max, cond)
+    cond.ref_tokens = None
+    sel = slice(k, k + kf)
+    fed = model.project(d.float(), cond)[sel]
+    x_in = torch.cat([x_in[:k], fed, x_in[k + kf :]])
+    sigma = torch.cat([sigma[:k], torch.full_like(sigma[sel], float(run.sampler.feedback_sigma)), sigma[k + kf :]])
+    return x_in, sigma
+
+
+def native_bf16(device: str | torch.device = "cpu") -> bool:
+    """Whether bfloat16 autocast runs natively on ``device``: always on accelerators; on the CPU only
+    with AMX or AVX512-BF16 (oneDNN's check). Elsewhere PyTorch emulates it, several times slower
+    than float32 (measured on an AVX2 machine: a ``base`` step 43 s in bf16, docs/model.md)."""
+    if torch.device(device).type != "cpu":
+        return True
+    try:
+        return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
+    except (AttributeError, RuntimeError):  # a PyTorch without the check: judge by the instruction set
+        return torch.backends.cpu.get_cpu_capability() == "AVX512"
+
+
 def _dist() -> tuple[int, int]:
     world = int(os.environ.get("WORLD_SIZE", "1"))
     if world > 1 and not dist.is_initialized():
@@ -247,6 +285,9 @@ def train(
             f"batch size {run.train.batch_size} is not divisible by {world} processes", element="train.batch_size"
         )
     dev = torch.device(device)
+    if bf16 and not native_bf16(dev):
+        log.warning("bf16 requested on a CPU without native bfloat16 (%s; no AMX or AVX512-BF16): PyTorch emulates it, "
+                    "several times slower than float32 here; train without --bf16", torch.backends.cpu.get_cpu_capability())
     torch.manual_seed(run.train.seed)
     model = RetargetModel(run.model).to(dev)
     opt = torch.optim.AdamW(model.parameters(), lr=run.train.lr, weight_decay=run.train.weight_decay)
@@ -310,6 +351,9 @@ def train(
         k = round(run.train.start_frac * B)
         if k:
             x_in, sigma = _at_sampler_start(model, cond, run, x_in, sigma, unit, k)
+        kf = round(run.train.feedback_frac * B)
+        if kf:
+            x_in, sigma = _at_feedback(model, cond, run, x_in, sigma, unit, k, kf, bf16)
         with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=bf16):
             d = net(x_in, sigma, cond)
         d = d.float()

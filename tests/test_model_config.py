@@ -95,3 +95,13 @@ def test_base_takes_the_goals_and_old_checkpoints_load_without_them():
     d["model"]["goal_input"] = 1  # an integer is not a flag
     with pytest.raises(ConfigError, match="model.goal_input"):
         from_dict(d)
+
+
+def test_feedback_frac_shares_the_batch_with_start_frac_and_old_checkpoints_load_without_it():
+    assert TrainConfig(start_frac=0.5, feedback_frac=0.5).feedback_frac == 0.5
+    with pytest.raises(ConfigError, match="feedback_frac"):
+        TrainConfig(start_frac=0.5, feedback_frac=0.75)
+    d = json.loads(json.dumps(preset("base").to_dict()))
+    del d["train"]["feedback_frac"], d["sampler"]["feedback_sigma"]  # written before the fields existed
+    run = from_dict(d)
+    assert run.train.feedback_frac == 0.0 and run.sampler.feedback_sigma == SamplerConfig().feedback_sigma

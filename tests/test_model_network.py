@@ -223,3 +223,56 @@ def test_start_frac_trains_where_the_sampler_starts(init_noise):
     want = prior[:2] + init_noise * 60.0 * unit[:2]
     torch.testing.assert_close(x_in[:2], want)
     torch.testing.assert_close(x_in[2], (x + noise)[2])
+
+
+def test_project_recomputes_positions_and_velocities_from_the_angles():
+    """RetargetModel.project: a sample whose features came from FK is returned unchanged; scrambled
+    position and velocity features are replaced by FK of its angles and base pose."""
+    from mer_data.rotations import axis_angle_to_matrix
+    from mer_models.kinematics import batch_features
+    from mer_models.representation import normalize
+
+    m = RetargetModel(dataclasses.replace(MICRO, goal_input=True, goal_prior=True)).eval()
+    b = mixed_batch(("g1", "tron1", "talos"), augment_first=True)
+    cond = m.conditions(b)
+    g = cond.tgt_graph
+    mask = g.mask[:, None, :, None]
+    torch.manual_seed(0)
+    B, T, J, _ = cond.shape
+    t = torch.linspace(0, 2, T)[None, :, None]
+    q = g.lower[:, None] + (g.upper - g.lower)[:, None] * (0.5 + 0.4 * torch.sin(3 * t + torch.rand(B, 1, J) * 6))
+    base_pos = torch.cat([t.expand(B, T, 2) * torch.rand(B, 1, 2), 0.8 + 0.05 * torch.sin(4 * t[..., :1].expand(B, T, 1))], -1)
+    base_rot = axis_angle_to_matrix(torch.cat([0.1 * torch.sin(2 * t).expand(B, T, 2), 0.5 * t.expand(B, T, 1)], -1))
+    x = normalize(batch_features(g, q * g.revolute[:, None], base_pos, base_rot, cond.fps), m.cfg) * mask
+    torch.testing.assert_close(m.project(x, cond), x, atol=2e-5, rtol=1e-4)
+    bad = x.clone()
+    bad[:, :, 1:, 1:7] += torch.randn_like(bad[:, :, 1:, 1:7]) * 0.3  # positions and velocities of every joint node
+    bad[:, :, 0, 6:9] += 1.0  # the base's velocity
+    torch.testing.assert_close(m.project(bad * mask, cond), x, atol=2e-5, rtol=1e-4)
+
+
+def test_feedback_frac_trains_on_the_networks_own_projected_estimate():
+    """TrainConfig.feedback_frac: samples k..k+kf get the network's own estimate from the sampler's
+    start, made consistent (project), at sigma = feedback_sigma; the others are unchanged, and the
+    cached reference encoding of that gradient-free evaluation is dropped."""
+    from mer_models.config import RunConfig, SamplerConfig, TrainConfig
+    from mer_models.train import _at_feedback
+
+    torch.manual_seed(0)
+    m = RetargetModel(dataclasses.replace(MICRO, goal_input=True, goal_prior=True)).eval()
+    with torch.no_grad():
+        for head in (m.net.base_head, m.net.joint_head):
+            head.weight.normal_(0, 0.5)
+    b = mixed_batch(("g1", "tron1", "h1"))
+    cond = m.conditions(b)
+    run = RunConfig(model=m.cfg, sampler=SamplerConfig(init_noise=0.0, sigma_max=60.0, feedback_sigma=0.4),
+                    train=TrainConfig(start_frac=1 / 3, feedback_frac=1 / 3))
+    x_in, sigma, unit = torch.randn(cond.shape), torch.tensor([60.0, 2.0, 7.0]), torch.randn(cond.shape)
+    got, s = _at_feedback(m, cond, run, x_in, sigma, unit, 1, 1, False)
+    assert cond.ref_tokens is None
+    torch.testing.assert_close(s, torch.tensor([60.0, 0.4, 7.0]))
+    with torch.no_grad():
+        want = m.project(m.denoise(m.goal_prior(cond), 60.0, cond), cond)
+    torch.testing.assert_close(got[1], want[1])
+    assert torch.equal(got[0], x_in[0]) and torch.equal(got[2], x_in[2])
+    assert not torch.allclose(got[1], x_in[1])

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import pytest
@@ -13,9 +14,11 @@ from mer_models.model import RetargetModel
 from mer_models.sampling import (
     CountingDenoiser,
     EnergyGuidance,
+    feedback_sigmas,
     karras_sigmas,
     sample_euler,
     sample_euler_ancestral,
+    sample_feedback,
     sample_heun,
 )
 
@@ -147,3 +150,47 @@ def test_init_noise_zero_is_deterministic_and_a_goal_prior_model_starts_at_its_g
     torch.testing.assert_close(seen[0], model.goal_prior(cond), rtol=0, atol=0)
     with pytest.raises(ConfigError, match="init_noise"):
         SamplerConfig(init_noise=2.0)
+
+
+def test_feedback_sampler_feeds_the_projected_estimate_back():
+    """sample_feedback: the first evaluation at sigma_max on x, every further one at the feedback
+    sigma on project(previous estimate); one evaluation per positive sigma; returns the last."""
+    calls = []
+
+    def den(x, sigma, cond):
+        calls.append((float(sigma), x.clone()))
+        return x * 0.5 + float(sigma)
+
+    def project(d, cond):
+        return d - 1.0
+
+    x = torch.full((1, 2, 3, 9), 4.0)
+    sig = feedback_sigmas(3, 80.0, 0.3)
+    torch.testing.assert_close(sig, torch.tensor([80.0, 0.3, 0.3, 0.0]))
+    out = sample_feedback(den, x, sig, None, project=project)
+    assert [s for s, _ in calls] == pytest.approx([80.0, 0.3, 0.3])
+    d1 = x * 0.5 + 80.0
+    torch.testing.assert_close(calls[1][1], d1 - 1.0)
+    d2 = (d1 - 1.0) * 0.5 + 0.3
+    torch.testing.assert_close(calls[2][1], d2 - 1.0)
+    torch.testing.assert_close(out, (d2 - 1.0) * 0.5 + 0.3)
+    calls.clear()
+    one = sample_feedback(den, x, feedback_sigmas(1, 80.0, 0.3), None, project=project)
+    assert len(calls) == 1 and torch.equal(one, d1)
+
+
+def test_feedback_sampling_runs_steps_evaluations_and_keeps_the_limits():
+    torch.manual_seed(0)
+    m = RetargetModel(dataclasses.replace(MICRO, goal_input=True, goal_prior=True)).eval()
+    with torch.no_grad():
+        for head in (m.net.base_head, m.net.joint_head):
+            head.weight.normal_(0, 0.5)
+    b = mixed_batch(("g1", "tron1"))
+    cond = m.conditions(b)
+    stats = {}
+    d = sample_conditions(m, cond, SamplerConfig(method="feedback", steps=4, init_noise=0.0), stats=stats)
+    assert stats["nfe"] == 4
+    q, g = m.decode(d, cond)["q"], cond.tgt_graph
+    assert ((q >= g.lower[:, None] - 1e-6) & (q <= g.upper[:, None] + 1e-6)).all()
+    with pytest.raises(ConfigError, match="feedback_sigma"):
+        SamplerConfig(feedback_sigma=0.0)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import os
 import subprocess
 import sys
@@ -15,7 +16,7 @@ from safetensors.torch import load_file
 
 from mer_data.errors import CheckpointError, ConfigError
 from mer_models.config import preset
-from mer_models.train import clean_samples, train
+from mer_models.train import clean_samples, native_bf16, train
 from mer_models.model import RetargetModel
 
 from model_helpers import MICRO, dataset, micro_run, mixed_batch
@@ -117,3 +118,22 @@ def test_learning_rate_warms_up_then_decays_by_cosine():
     assert _lr(run, 10_000) == pytest.approx(0.1)
     const = run.replace(train=dataclasses.replace(run.train, lr_decay_steps=0))
     assert _lr(const, 500) == 1.0
+
+
+def test_bf16_warns_where_the_cpu_would_emulate_it(tmp_path, monkeypatch, caplog):
+    """On a CPU without AMX/AVX512-BF16, bf16 autocast is emulated and slower than float32: the
+    run still trains (the user asked for it) but the log says so; with native bf16 it does not."""
+    import mer_models.train as train_module
+
+    for native, folder in ((False, "emulated"), (True, "native")):
+        monkeypatch.setattr(train_module, "native_bf16", lambda device="cpu", native=native: native)
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="mer_models.train"):
+            res = train(micro_run(), dataset(), tmp_path / folder, steps=1, bf16=True)
+        assert res.step == 1
+        assert ("without native bfloat16" in caplog.text) is not native, caplog.text
+
+
+def test_native_bf16_follows_the_cpus_own_check():
+    assert native_bf16("meta") is True  # accelerators run bf16 natively
+    assert native_bf16("cpu") is bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())

@@ -278,3 +278,34 @@ def test_point_feet_are_not_held_flat(tmp_path):
     pointy = replace(g1, keypoints=kp)
     cal = orientation_calibration(g1, pointy)
     assert "left_ankle" not in cal and "right_ankle" not in cal and "left_hand" in cal
+
+
+@pytest.mark.parametrize("scaling", ["segments", "parts"])
+def test_collate_computes_the_goals_of_a_skeleton_pair_once_for_all_its_samples(scaling):
+    """collate stacks the frames of every sample sharing a (reference, target) pair into one goal
+    computation: the goals equal those of each window on its own, in a batch that mixes pairs,
+    an augmented target and a repeated pair split by another one."""
+    from mer_data.samples import reference_goals
+
+    ref = get_skeleton("g1")
+    h1, tron1 = get_skeleton("h1"), get_skeleton("tron1")
+    scaled_h1 = h1.with_link_scales(np.linspace(0.8, 1.3, h1.num_nodes))
+    targets = [h1, tron1, h1, scaled_h1, h1]
+    samples = [TrainingSample(synthetic_window("g1", 60, k), ref, t, joint_map(t, ref)) for k, t in enumerate(targets)]
+    batch = collate(samples, scaling=scaling)
+    for b, s in enumerate(samples):
+        pos, rot, mask = reference_goals(s.reference, ref, s.target_skeleton, scaling=scaling)
+        jr = ref.num_nodes
+        torch.testing.assert_close(batch["ref_scaled_pos"][b, :, :jr], torch.from_numpy(pos).float(), rtol=0, atol=1e-6)
+        torch.testing.assert_close(batch["ref_goal_rot"][b, :, :jr], torch.from_numpy(rot).float(), rtol=0, atol=1e-6)
+        assert torch.equal(batch["ref_rot_mask"][b, :jr], torch.from_numpy(mask))
+    assert not torch.allclose(batch["ref_scaled_pos"][0], batch["ref_scaled_pos"][3])  # the augmented target differs
+
+
+def test_a_skeletons_json_is_computed_once_and_equal_skeletons_stay_equal():
+    a = get_skeleton("h1")
+    assert a.to_json() is a.to_json()  # cached on the object
+    b = type(a).from_json(a.to_json())
+    assert b is not a and b == a and hash(b) == hash(a) and b.fingerprint == a.fingerprint
+    c = a.with_link_scales(np.full(a.num_nodes, 1.1))
+    assert c != a and c.fingerprint != a.fingerprint

@@ -60,10 +60,18 @@ def run_curve(cfg_name: str, args, out: Path, minutes: float) -> list[dict]:
     run = preset(cfg_name)
     if args.batch_size:
         run = run.replace(train=dataclasses.replace(run.train, batch_size=args.batch_size))
+    if args.lr:
+        run = run.replace(train=dataclasses.replace(run.train, lr=args.lr))
     if args.lr_decay_steps:
         run = run.replace(train=dataclasses.replace(run.train, lr_decay_steps=args.lr_decay_steps))
     if args.start_frac is not None:
         run = run.replace(train=dataclasses.replace(run.train, start_frac=args.start_frac))
+    if args.feedback_frac is not None:
+        run = run.replace(train=dataclasses.replace(run.train, feedback_frac=args.feedback_frac))
+    if args.sampler:
+        run = run.replace(sampler=dataclasses.replace(run.sampler, method=args.sampler[0], steps=int(args.sampler[1])))
+    if args.feedback_sigma:
+        run = run.replace(sampler=dataclasses.replace(run.sampler, feedback_sigma=args.feedback_sigma))
     run = run.replace(train=dataclasses.replace(run.train, save_every=args.chunk_steps, log_every=min(10, args.chunk_steps)))
     ds = ShardDataset(args.shards, teacher=True)
     curve_path = out.parent / f"{out.name}.learning_curve.jsonl"  # beside the folder: a checkpoint save replaces the folder
@@ -102,11 +110,16 @@ def main() -> int:
     ap.add_argument("--max-minutes", type=float, default=60.0, help="CPU minutes of training in all (default 60)")
     ap.add_argument("--minutes-each", type=float, default=10.0, help="with --configs: CPU minutes per configuration")
     ap.add_argument("--batch-size", type=int, help="override the preset's batch size")
+    ap.add_argument("--lr", type=float, help="override the preset's peak learning rate (e.g. a lower one to continue from --init)")
     ap.add_argument("--lr-decay-steps", type=int, help="cosine learning-rate decay over this many steps after the warm-up")
     ap.add_argument("--start-frac", type=float, help="share of every batch trained at the sampler's starting point (TrainConfig.start_frac)")
+    ap.add_argument("--feedback-frac", type=float, help="share of every batch trained on the network's own estimates (TrainConfig.feedback_frac)")
+    ap.add_argument("--feedback-sigma", type=float, help="noise level of the feedback evaluations (SamplerConfig.feedback_sigma)")
+    ap.add_argument("--sampler", nargs=2, metavar=("METHOD", "STEPS"), help="the checkpoint's sampler (what the curve evaluates), "
+                    "e.g. feedback 2; default: the preset's")
     ap.add_argument("--init", metavar="DIR", help="start from this checkpoint's weights (fresh optimiser), e.g. the bundled "
                     "mer-base, to continue training in a session that lacks the run folder")
-    ap.add_argument("--bf16", action="store_true", help="bfloat16 autocast (AMX on CPU)")
+    ap.add_argument("--bf16", action="store_true", help="bfloat16 autocast (GPUs; CPUs with AMX or AVX512-BF16 only)")
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--clock", choices=["cpu", "wall"], default="cpu",
                     help="what --max-minutes/--minutes-each count: CPU time of this process (default) or wall time (accelerators)")

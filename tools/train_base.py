@@ -13,7 +13,8 @@ new run from the committed weights when the run folder, with its optimiser state
    scaling and dropped correspondences). Synthetic motion generated in code: the weights carry no
    LAFAN1 licence (Apache-2.0).
 2. **teacher**: ``mer shards solve`` (the optimiser's solution of every sample).
-3. **train**: ``tools/learning_curve.py --config base`` for ``--minutes`` CPU minutes, bf16 autocast,
+3. **train**: ``tools/learning_curve.py --config base`` for ``--minutes`` CPU minutes, bf16 autocast
+   where the CPU runs it natively (AMX or AVX512-BF16; float32 elsewhere),
    evaluated on held-out LAFAN1 windows after every chunk when ``--lafan1`` is given (the learning
    curve of docs/model.md).
 4. **evaluate**: ``mer evaluate`` on LAFAN1 (G1 and H1 as sources, 8 targets, 32 windows each, the
@@ -70,7 +71,11 @@ def train_step(work: Path, shards: Path, minutes: float, lafan1: str | None, clo
                lr_decay_steps: int = 0) -> Path:
     out = work / NAME
     cmd = [sys.executable, str(REPO / "tools" / "learning_curve.py"), "--config", "base", "--shards", str(shards), "--out", str(out),
-           "--bf16", "--max-minutes", str(minutes), "--clock", clock, "--chunk-steps", "150"]  # fmt: skip
+           "--max-minutes", str(minutes), "--clock", clock, "--chunk-steps", "150"]  # fmt: skip
+    from mer_models.train import native_bf16
+
+    if native_bf16("cpu"):  # AMX / AVX512-BF16; elsewhere bf16 is emulated and slower than float32
+        cmd.append("--bf16")
     if lr_decay_steps:
         cmd += ["--lr-decay-steps", str(lr_decay_steps)]
     if init:

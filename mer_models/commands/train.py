@@ -24,7 +24,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="checkpoint folder to write")
     p.add_argument("--steps", type=int, default=1000, help="total optimiser steps (default 1000)")
     p.add_argument("--resume", action="store_true", help="continue the checkpoint in --out exactly")
-    p.add_argument("--bf16", action="store_true", help="bfloat16 autocast for the network")
+    p.add_argument("--bf16", action="store_true", help="bfloat16 autocast for the network (fast on GPUs and on CPUs with AMX or AVX512-BF16; emulated, slower than float32, elsewhere: a warning says so)")
     add_run_overrides(p, "the preset's")
     p.add_argument("--split", default="train", choices=["train", "eval", "all"], help="shard windows to train on (default train)")
     p.add_argument("--targets", nargs="+", help="only these target robots (default: all in the shards)")
