@@ -135,6 +135,10 @@ def collate(samples: Sequence[TrainingSample], *, scaling: ScalingMethod = "segm
     arrays of :data:`GRAPH_KEYS` padded to the batch's node count plus a node ``mask``; padding
     nodes hang off the base with zero offset and axis, so FK of a padded batch is valid. Also
     ``ref_names`` / ``tgt_names`` (robot names) and ``provenance`` (list of dicts).
+
+    The goals are computed once per (reference, target) skeleton object pair, on the frames of all
+    its samples stacked (they are per frame): a batch of one robot pair costs one FK and one
+    scaling call, not one per window.
     """
     if not samples:
         raise ValueError("cannot collate an empty list of samples")

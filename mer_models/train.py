@@ -184,8 +184,12 @@ def native_bf16(device: str | torch.device = "cpu") -> bool:
         return True
     try:
         return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
-    except (AttributeError, RuntimeError):  # a PyTorch without the check: judge by the instruction set
-        return torch.backends.cpu.get_cpu_capability() == "AVX512"
+    except (AttributeError, RuntimeError):  # a PyTorch without the check: the CPU's flags, where Linux lists them
+        try:
+            flags = Path("/proc/cpuinfo").read_text()
+        except OSError:
+            return True  # cannot tell: no warning
+        return "amx_bf16" in flags or "avx512_bf16" in flags
 
 
 def _dist() -> tuple[int, int]:

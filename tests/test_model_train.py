@@ -134,6 +134,11 @@ def test_bf16_warns_where_the_cpu_would_emulate_it(tmp_path, monkeypatch, caplog
         assert ("without native bfloat16" in caplog.text) is not native, caplog.text
 
 
-def test_native_bf16_follows_the_cpus_own_check():
+def test_native_bf16_follows_the_cpus_own_check(monkeypatch):
     assert native_bf16("meta") is True  # accelerators run bf16 natively
     assert native_bf16("cpu") is bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
+    cpuinfo = Path("/proc/cpuinfo")
+    if cpuinfo.is_file():  # a PyTorch without oneDNN's check: the CPU flags (Linux) decide
+        monkeypatch.setattr(torch.ops, "mkldnn", object())
+        flags = cpuinfo.read_text()
+        assert native_bf16("cpu") is ("amx_bf16" in flags or "avx512_bf16" in flags)
