@@ -7,7 +7,7 @@
 # Steps (each on synthetic motion generated in code: the weights carry no LAFAN1 licence):
 #   1. shards: `mer shards build --synthetic` for the 8 built-in robots (sources and targets), 1 augmentation;
 #   2. teacher: `mer shards solve`, one process per shard file (the device machine's CPU cores);
-#   3. train: tools/learning_curve.py, bf16 autocast, for --minutes of wall time, evaluated after every
+#   3. train: tools/learning_curve.py, bf16 autocast (a CPU dry run: only where native), for --minutes of wall time, evaluated after every
 #      chunk on --eval-input (a LAFAN1-layout folder carried to the device) when given;
 #   4. evaluate: `mer evaluate` (model and optimiser on the same windows) when --eval-input is given.
 # $OUT receives: config.json, model.safetensors, train_log.jsonl, run.learning_curve.jsonl, teacher.json,
@@ -37,6 +37,8 @@ echo "train_device: config $CONFIG, $MINUTES min, device $DEVICE, work $WORK"
 $PY -c "import torch, h5py, safetensors, mcap, yourdfpy; print('torch', torch.__version__, 'cuda', torch.cuda.is_available())"
 if [ "$DEVICE" = cuda ]; then $PY -c "import torch; assert torch.cuda.is_available(), 'no CUDA device'; print(torch.cuda.get_device_name())"; fi
 NCPU=$($PY -c "import os; print(os.cpu_count() or 1)")
+BF16=(--bf16)  # native on accelerators; on a CPU (the dry run) only with AMX/AVX512-BF16, else emulated and slow
+if [ "$DEVICE" = cpu ] && ! $PY -c "import sys; from mer_models.train import native_bf16; sys.exit(0 if native_bf16('cpu') else 1)"; then BF16=(); fi
 t0=$(date +%s)
 $PY -m mer_models shards build --synthetic "$CLIPS" --synthetic-seconds "$SECONDS_PER_CLIP" --robots $ROBOTS --targets $ROBOTS \
   --augment 1 --workers "$NCPU" --quiet --out "$WORK/shards"
@@ -52,7 +54,7 @@ echo "train_device: shards + teacher in $(( $(date +%s) - t0 )) s"
 t1=$(date +%s)
 EVAL=()
 if [ -n "$EVAL_INPUT" ]; then EVAL=(--eval-input "$EVAL_INPUT" --eval-targets g1 h1 atlas --eval-windows 16); fi
-$PY tools/learning_curve.py --config "$CONFIG" --shards "$WORK/shards" --out "$WORK/run" --device "$DEVICE" --bf16 \
+$PY tools/learning_curve.py --config "$CONFIG" --shards "$WORK/shards" --out "$WORK/run" --device "$DEVICE" "${BF16[@]}" \
   --clock wall --max-minutes "$MINUTES" --chunk-steps "$STEPS_CHUNK" "${BATCH[@]}" "${EVAL[@]}"
 echo "train_device: training in $(( $(date +%s) - t1 )) s"
 cp "$WORK/run/config.json" "$WORK/run/model.safetensors" "$WORK/run/train_log.jsonl" "$WORK/run.learning_curve.jsonl" "$OUT/"
