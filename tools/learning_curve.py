@@ -60,7 +60,7 @@ def run_curve(cfg_name: str, args, out: Path, minutes: float) -> list[dict]:
     run = preset(cfg_name)
     if args.batch_size:
         run = run.replace(train=dataclasses.replace(run.train, batch_size=args.batch_size))
-    if args.lr:
+    if args.lr is not None:  # 0 or a negative rate reaches TrainConfig and is refused there, not dropped
         run = run.replace(train=dataclasses.replace(run.train, lr=args.lr))
     if args.lr_decay_steps:
         run = run.replace(train=dataclasses.replace(run.train, lr_decay_steps=args.lr_decay_steps))
@@ -70,7 +70,7 @@ def run_curve(cfg_name: str, args, out: Path, minutes: float) -> list[dict]:
         run = run.replace(train=dataclasses.replace(run.train, feedback_frac=args.feedback_frac))
     if args.sampler:
         run = run.replace(sampler=dataclasses.replace(run.sampler, method=args.sampler[0], steps=int(args.sampler[1])))
-    if args.feedback_sigma:
+    if args.feedback_sigma is not None:
         run = run.replace(sampler=dataclasses.replace(run.sampler, feedback_sigma=args.feedback_sigma))
     run = run.replace(train=dataclasses.replace(run.train, save_every=args.chunk_steps, log_every=min(10, args.chunk_steps)))
     ds = ShardDataset(args.shards, teacher=True)
