@@ -15,7 +15,10 @@
 * **Batched across clips** (optimiser): every clip is cut into segments of ``segment`` frames
   plus ``context`` frames on each side (solved with their neighbours so the temporal prior has no
   seam), and segments of many clips are solved together, up to ``frames_per_batch`` frames at
-  once. The model (``method="diffusion"``) retargets clip by clip through the long-horizon sampler.
+  once. The model (``method="diffusion"``) retargets clip by clip through the long-horizon sampler,
+  all of a clip's pending targets in one pass, the reference encoded once per window for all of
+  them (:func:`~mer_models.long_horizon.retarget_sequences`); each pair's ``seconds`` is its
+  share of that pass.
 * **Summary**: a table per (clip, target) at the end and ``OUT/summary.json`` (every finished
   pair, including those of earlier runs and other shards that share ``OUT``).
 """
@@ -45,7 +48,7 @@ from .config import EnergyConfig
 from .kinematics import graph_from_batch
 from .long_horizon import prepare_reference
 from .optimize import optimize_motion
-from .retarget import MODEL_FPS, retarget_features, sequence_metrics, source_features
+from .retarget import MODEL_FPS, retarget_features_many, sequence_metrics, source_features
 from .writers import NPZ_FPS, TargetMotion, write_csv, write_npz
 
 log = logging.getLogger(__name__)
@@ -133,14 +136,19 @@ def _segments(n: int, segment: int, context: int) -> list[tuple[int, int, int, i
     return out
 
 
-def _read(job: Job, src: Skeleton, target: Skeleton, fps: float) -> _Clip:
+def _source(job: Job, src: Skeleton, fps: float) -> np.ndarray:
+    """(N, Jr, 9) world features of a job's source clip at the model's frame rate."""
     from mer_data.motion_io import read_lafan1_csv
     from mer_data.resample import resample
 
     motion = read_lafan1_csv(job.source_path, src.name, fps=fps)
     if motion.fps != MODEL_FPS:
         motion = resample(motion, MODEL_FPS)
-    feats = source_features(motion.base_pos, motion.base_quat, motion.node_angles(src), src, MODEL_FPS)
+    return source_features(motion.base_pos, motion.base_quat, motion.node_angles(src), src, MODEL_FPS)
+
+
+def _read(job: Job, src: Skeleton, target: Skeleton, fps: float) -> _Clip:
+    feats = _source(job, src, fps)
     f, scaled, shift, (goal_rot, rot_mask) = prepare_reference(feats, src, target)
     return _Clip(job, f, scaled, goal_rot, rot_mask, shift, feats)
 
@@ -245,21 +253,29 @@ def retarget_dataset(
     log.info("%d (target, clip) pairs in this shard; %d already done, %d to do", len(jobs), len(jobs) - len(todo), len(todo))
     energy = energy or EnergyConfig()
     t_start, frames_done, pairs_done = time.perf_counter(), 0, 0
-    for target_name in sorted({j.target for j in todo}):
-        target = tgts[target_name]
-        tjobs = [j for j in todo if j.target == target_name]
-        if method == "diffusion":
-            for j in tjobs:
-                t0 = time.perf_counter()
-                c = _read(j, src, target, input_fps)
-                res = retarget_features(c.world_feats, src, target, method="diffusion", checkpoint=checkpoint, fps=MODEL_FPS, **model_kw)
-                prepared = (c.feats, c.scaled, c.shift, (c.goal_rot, c.rot_mask))
-                _write(j, res.motion, c.world_feats, src, formats, method, time.perf_counter() - t0, prepared, npz_fps)
+    if method == "diffusion":  # clip by clip, all its pending targets in one pass (the reference encoded once per window)
+        by_clip: dict[str, list[Job]] = {}
+        for j in todo:
+            by_clip.setdefault(j.clip, []).append(j)
+        for _, cjobs in sorted(by_clip.items()):
+            cjobs.sort(key=lambda j: j.target)
+            t0 = time.perf_counter()
+            world = _source(cjobs[0], src, input_fps)
+            results = retarget_features_many(world, src, [tgts[j.target] for j in cjobs], method="diffusion", checkpoint=checkpoint,
+                                             fps=MODEL_FPS, **model_kw)  # fmt: skip
+            seconds = (time.perf_counter() - t0) / len(cjobs)  # the pass is shared: each pair gets its share
+            for j, res in zip(cjobs, results):
+                _write(j, res.motion, world, src, formats, method, seconds, prepare_reference(world, src, tgts[j.target]), npz_fps)
                 frames_done += res.motion.num_frames
                 pairs_done += 1
                 if progress is not None:
                     progress(pairs_done, len(todo))
-            continue
+        todo_optimize: list[Job] = []
+    else:
+        todo_optimize = todo
+    for target_name in sorted({j.target for j in todo_optimize}):
+        target = tgts[target_name]
+        tjobs = [j for j in todo_optimize if j.target == target_name]
         span = segment + 2 * context
         per_batch = max(1, frames_per_batch // span)
         queue: list[tuple[_Clip, tuple[int, int, int, int]]] = []

@@ -17,7 +17,7 @@ own canonical frame and mapped back, and the original position is restored at th
 from __future__ import annotations
 
 import logging
-from typing import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import torch
@@ -34,7 +34,7 @@ from .representation import normalize, transform_features
 
 log = logging.getLogger(__name__)
 
-__all__ = ["clip_starts", "prepare_reference", "retarget_sequence"]
+__all__ = ["clip_starts", "prepare_reference", "retarget_sequence", "retarget_sequences"]
 
 
 def clip_starts(n: int, frames: int, overlap: int) -> list[int]:
@@ -85,79 +85,116 @@ def retarget_sequence(
     target: Skeleton,
     sampler: SamplerConfig,
     *,
+    eta: np.ndarray | None = None,
+    **kw,
+) -> dict[str, np.ndarray]:
+    """Retarget a whole motion with the model to one target (:func:`retarget_sequences`)."""
+    return retarget_sequences(model, reference, ref, [target], sampler, etas=None if eta is None else [eta], **kw)[0]
+
+
+def retarget_sequences(
+    model: RetargetModel,
+    reference: np.ndarray,
+    ref: Skeleton,
+    targets: Sequence[Skeleton],
+    sampler: SamplerConfig,
+    *,
     energy: EnergyConfig | None = None,
     fps: float = 30.0,
     steps: int | None = None,
     method: str | None = None,
     seed: int = 0,
     inpaint: bool = True,
-    eta: np.ndarray | None = None,
+    etas: Sequence[np.ndarray] | None = None,
     progress: Callable[[int, int], None] | None = None,
-) -> dict[str, np.ndarray]:
-    """Retarget a whole motion with the model.
+) -> list[dict[str, np.ndarray]]:
+    """Retarget a whole motion with the model to several targets at once.
+
+    Window by window, the reference encoder (which does not depend on the target) runs once, and
+    each target is sampled from its encoding in turn: retargeting one motion to eight robots costs
+    about half of eight one-target calls (``tools/bench_targets.py``). A padded batch of all
+    targets was measured slower than this loop on the CPU (the padding to the largest robot's
+    nodes costs more than the per-call overhead it saves). Each target has its own generator
+    seeded with ``seed``, so its output is a one-target call's whichever targets it shares the
+    pass with.
 
     Args:
         reference: (N, Jr, 9) features of the source motion in the world frame.
-        ref, target: the two skeletons; ``eta`` defaults to :func:`mer_data.jointmap.joint_map`.
+        ref, targets: the skeletons; ``etas`` (per target) default to :func:`mer_data.jointmap.joint_map`.
         sampler: steps, noise schedule, guidance and ``overlap``.
         inpaint: False concatenates independently sampled clips (for comparison only).
+        progress: called with (windows done, windows) of the motion.
 
     Returns:
-        ``q`` (N, Jt) [rad], ``base_pos`` (N, 3) [m], ``base_rot`` (N, 3, 3), world frame, float64.
+        Per target: ``q`` (N, Jt) [rad], ``base_pos`` (N, 3) [m], ``base_rot`` (N, 3, 3), world frame, float64.
     """
+    targets = list(targets)
+    if not targets:
+        raise ValueError("no target robot given")
     frames = model.cfg.frames
     overlap = sampler.overlap
     n = reference.shape[0]
     if n < 1:
         raise ValueError("the motion has no frames")
-    eta = joint_map(target, ref) if eta is None else eta
-    feats, scaled, shift, _ = prepare_reference(reference, ref, target)
+    etas = [joint_map(t, ref) for t in targets] if etas is None else list(etas)
+    if len(etas) != len(targets):
+        raise ValueError(f"{len(etas)} joint maps for {len(targets)} targets")
+    scaled = []
+    for t in targets:
+        feats, s, shift, _ = prepare_reference(reference, ref, t)  # feats and shift do not depend on the target
+        scaled.append(s)
     pad = max(0, frames - n)
     if pad:
         feats = np.concatenate([feats, np.repeat(feats[-1:], pad, 0)])
         feats[n:, 0, 6:9] = 0
         feats[n:, 1:, 4:7] = 0
-        scaled = np.concatenate([scaled, np.repeat(scaled[-1:], pad, 0)])
+        scaled = [np.concatenate([s, np.repeat(s[-1:], pad, 0)]) for s in scaled]
     total = feats.shape[0]
     starts = clip_starts(total, frames, overlap)
     dev = next(model.parameters()).device
-    gen = torch.Generator(device=dev).manual_seed(seed)
-    Jt = target.num_nodes
-    q = np.zeros((total, Jt))
-    base_pos = np.zeros((total, 3))
-    base_rot = np.zeros((total, 3, 3))
+    # per target: its own generator seeded with `seed` (its noise is a one-target call's) and its motion so far
+    gens = [torch.Generator(device=dev).manual_seed(seed) for _ in targets]
+    q = [np.zeros((total, t.num_nodes)) for t in targets]
+    base_pos = [np.zeros((total, 3)) for _ in targets]
+    base_rot = [np.zeros((total, 3, 3)) for _ in targets]
     done = 0  # frames [0, done) are final
     for k, s in enumerate(starts):
-        batch = _window_batch(feats[s : s + frames], scaled[s : s + frames], ref, target, eta)
-        cond = model.conditions(batch, fps)
+        tokens = None  # the reference window's encoding, shared by every target
         known = done - s if (inpaint and k > 0) else 0
-        wrapper = None
-        if known > 0:
-            g = cond.tgt_graph
-            prev = batch_features(
-                g,
-                torch.from_numpy(q[s:done]).float()[None].to(dev),
-                torch.from_numpy(base_pos[s:done]).float()[None].to(dev),
-                torch.from_numpy(base_rot[s:done]).float()[None].to(dev),
-                fps,
-            )
-            prev = normalize(transform_features(prev, cond.rot, cond.origin), model.cfg) * g.mask[:, None, :, None]
-
-            def wrapper(den, prev=prev, known=known):
-                def inpainted(x, sigma, c):
-                    d = den(x, sigma, c)
-                    return torch.cat([prev[:, :known], d[:, known:]], 1)
-
-                return inpainted
-
-        d = sample_conditions(model, cond, sampler, energy=energy, method=method, steps=steps, generator=gen, denoiser_wrapper=wrapper)
-        out = model.decode(d, cond)
         lo = max(done, s)
-        q[lo : s + frames] = out["q"][0, lo - s :].double().cpu().numpy()
-        base_pos[lo : s + frames] = out["base_pos"][0, lo - s :].double().cpu().numpy()
-        base_rot[lo : s + frames] = out["base_rot"][0, lo - s :].double().cpu().numpy()
+        for i, t in enumerate(targets):
+            batch = _window_batch(feats[s : s + frames], scaled[i][s : s + frames], ref, t, etas[i])
+            cond = model.conditions(batch, fps)
+            if tokens is None:
+                with torch.no_grad():
+                    tokens = model.encode(cond)
+            cond.ref_tokens = tokens
+            wrapper = None
+            if known > 0:
+                g = cond.tgt_graph
+                prev = batch_features(
+                    g,
+                    torch.from_numpy(q[i][s:done]).float()[None].to(dev),
+                    torch.from_numpy(base_pos[i][s:done]).float()[None].to(dev),
+                    torch.from_numpy(base_rot[i][s:done]).float()[None].to(dev),
+                    fps,
+                )
+                prev = normalize(transform_features(prev, cond.rot, cond.origin), model.cfg) * g.mask[:, None, :, None]
+
+                def wrapper(den, prev=prev, known=known):
+                    def inpainted(x, sigma, c):
+                        d = den(x, sigma, c)
+                        return torch.cat([prev[:, :known], d[:, known:]], 1)
+
+                    return inpainted
+
+            d = sample_conditions(model, cond, sampler, energy=energy, method=method, steps=steps, generator=gens[i],
+                                  denoiser_wrapper=wrapper)  # fmt: skip
+            out = model.decode(d, cond)
+            q[i][lo : s + frames] = out["q"][0, lo - s :].double().cpu().numpy()
+            base_pos[i][lo : s + frames] = out["base_pos"][0, lo - s :].double().cpu().numpy()
+            base_rot[i][lo : s + frames] = out["base_rot"][0, lo - s :].double().cpu().numpy()
         done = s + frames
         if progress is not None:
             progress(k + 1, len(starts))
-    base_pos = base_pos + shift
-    return {"q": q[:n], "base_pos": base_pos[:n], "base_rot": base_rot[:n]}
+    return [{"q": q[i][:n], "base_pos": base_pos[i][:n] + shift, "base_rot": base_rot[i][:n]} for i in range(len(targets))]

@@ -1,7 +1,7 @@
 """Retargeting as a library: a source motion (CSV or arrays) → a target motion, and its files.
 
 :func:`retarget_features` is the core (features in, :class:`~mer_models.writers.TargetMotion`
-out) with two methods:
+out; :func:`retarget_features_many` for several targets at once) with two methods:
 
 * ``diffusion``: the guided-diffusion model, long-horizon (:mod:`mer_models.long_horizon`);
 * ``optimize``: the optimisation baseline on the whole motion (:mod:`mer_models.optimize`), no
@@ -18,7 +18,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import torch
@@ -34,7 +34,7 @@ from mer_data.skeleton import Skeleton
 from .checkpoint import Checkpoint, check_robot, resolve_model
 from .config import EnergyConfig, SamplerConfig
 from .kinematics import graph_from_batch
-from .long_horizon import prepare_reference, retarget_sequence
+from .long_horizon import prepare_reference, retarget_sequences
 from .ik import DEFAULT_SMOOTH
 from .optimize import DEFAULT_GN_ITERS, DEFAULT_ITERS, optimize_motion
 from .writers import (
@@ -50,7 +50,7 @@ from .writers import (
 
 log = logging.getLogger(__name__)
 
-__all__ = ["METHODS", "RetargetResult", "source_features", "retarget_features", "retarget_file", "sequence_metrics", "MODEL_FPS"]
+__all__ = ["METHODS", "RetargetResult", "source_features", "retarget_features", "retarget_features_many", "retarget_file", "sequence_metrics", "MODEL_FPS"]
 
 METHODS = ("diffusion", "optimize")
 MODEL_FPS = 30.0
@@ -123,6 +123,19 @@ def retarget_features(
     reference: np.ndarray,
     source: str | Skeleton,
     target: str | Skeleton,
+    **kw,
+) -> RetargetResult:
+    """Retarget source features (F, Jr, 9) (world frame, at ``fps``) to ``target``.
+
+    One target of :func:`retarget_features_many` (the options are documented there).
+    """
+    return retarget_features_many(reference, source, [target], **kw)[0]
+
+
+def retarget_features_many(
+    reference: np.ndarray,
+    source: str | Skeleton,
+    targets: Sequence[str | Skeleton],
     *,
     method: str = "diffusion",
     checkpoint: Checkpoint | None = None,
@@ -137,51 +150,71 @@ def retarget_features(
     energy: EnergyConfig | None = None,
     refine: int = 0,
     progress: Callable[[int, int], None] | None = None,
-) -> RetargetResult:
-    """Retarget source features (F, Jr, 9) (world frame, at ``fps``) to ``target``.
+) -> list[RetargetResult]:
+    """Retarget source features (F, Jr, 9) (world frame, at ``fps``) to every robot of ``targets``.
 
     ``checkpoint`` is required for ``diffusion``; ``steps``/``guidance`` override its sampler
-    configuration. ``opt_*`` and ``energy`` set the optimiser (``opt_smooth``: its temporal prior,
+    configuration. With ``diffusion`` the targets are sampled window by window, the reference encoded
+    once per window for all of them (:func:`~mer_models.long_horizon.retarget_sequences`).
+    ``opt_*`` and ``energy`` set the optimiser (``opt_smooth``: its temporal prior,
     :mod:`mer_models.ik`). ``refine`` > 0 warm-starts the optimiser from the model's output for at
-    most that many Levenberg-Marquardt iterations (diffusion only). ``allow_unseen`` retargets to a robot the model never saw (zero-shot; the
-    paper fine-tunes instead).
+    most that many Levenberg-Marquardt iterations (diffusion only). ``allow_unseen`` retargets to a
+    robot the model never saw (zero-shot; the paper fine-tunes instead). ``progress`` gets
+    (windows done, windows) of the model's pass.
+
+    Returns:
+        One result per target, in the order of ``targets``.
     """
     if method not in METHODS:
         raise MerError(f"unknown method {method!r}; known: {', '.join(METHODS)}", fix="use --method diffusion or optimize")
     ref = get_skeleton(source) if isinstance(source, str) else source
-    tgt = get_skeleton(target) if isinstance(target, str) else target
+    tgts = [get_skeleton(t) if isinstance(t, str) else t for t in targets]
+    if not tgts:
+        raise MerError("no target robot given", fix="name at least one target robot")
     reference = np.asarray(reference, np.float64)
     if reference.ndim != 3 or reference.shape[1:] != (ref.num_nodes, 9):
         raise MerError(f"source features have shape {reference.shape}, expected (F, {ref.num_nodes}, 9) for {ref.name!r}")
     _check_finite(reference)
-    eta = joint_map(tgt, ref)
-    feats, scaled, shift, rot_goals = prepare_reference(reference, ref, tgt)
+    etas = [joint_map(t, ref) for t in tgts]
+    prepared = [prepare_reference(reference, ref, t) for t in tgts]
+    outs: list[dict[str, np.ndarray]]
+    labels = [method] * len(tgts)
     if method == "diffusion":
         if checkpoint is None:
             raise MerError("the diffusion method needs a model", fix="pass --model PATH, or use --method optimize")
         if not allow_unseen:
-            check_robot(checkpoint, tgt.name, "targets", tgt.fingerprint)
+            for t in tgts:
+                check_robot(checkpoint, t.name, "targets", t.fingerprint)
             check_robot(checkpoint, ref.name, "references", ref.fingerprint)
         run = checkpoint.run
         sampler = run.sampler if guidance is None else SamplerConfig(**{**run.sampler.__dict__, "guidance": float(guidance)})
-        out = retarget_sequence(
-            checkpoint.model, reference, ref, tgt, sampler, energy=energy or run.energy, fps=fps, steps=steps,
-            seed=seed, eta=eta, progress=progress,
+        outs = retarget_sequences(
+            checkpoint.model, reference, ref, tgts, sampler, energy=energy or run.energy, fps=fps, steps=steps,
+            seed=seed, etas=etas, progress=progress,
         )  # fmt: skip
         if refine > 0:
             device = next(checkpoint.model.parameters()).device
-            init = {"q": out["q"], "base_pos": np.asarray(out["base_pos"]) - shift, "base_rot": out["base_rot"]}
-            out = _optimize_sequence(feats, scaled, rot_goals, ref, tgt, eta, energy or EnergyConfig(), fps, 0, refine, device,
-                                     smooth=opt_smooth, init=init)  # fmt: skip
-            out["base_pos"] = out["base_pos"] + shift
-            method = f"diffusion+refine{refine}"
+            for i, (t, eta, (feats, scaled, shift, rot_goals)) in enumerate(zip(tgts, etas, prepared)):
+                init = {"q": outs[i]["q"], "base_pos": np.asarray(outs[i]["base_pos"]) - shift, "base_rot": outs[i]["base_rot"]}
+                out = _optimize_sequence(feats, scaled, rot_goals, ref, t, eta, energy or EnergyConfig(), fps, 0, refine, device,
+                                         smooth=opt_smooth, init=init)  # fmt: skip
+                out["base_pos"] = out["base_pos"] + shift
+                outs[i] = out
+            labels = [f"diffusion+refine{refine}"] * len(tgts)
     else:
         device = next(checkpoint.model.parameters()).device if checkpoint is not None else torch.device("cpu")
-        out = _optimize_sequence(feats, scaled, rot_goals, ref, tgt, eta, energy or EnergyConfig(), fps, opt_iters, opt_gn_iters, device,
-                                 smooth=opt_smooth)
-        out["base_pos"] = out["base_pos"] + shift
-    motion = TargetMotion(tgt, fps, out["q"], out["base_pos"], out["base_rot"])
-    return RetargetResult(motion, _reference_points(scaled, shift, eta), method, reference_nodes=scaled + shift, reference_skeleton=ref)
+        outs = []
+        for t, eta, (feats, scaled, shift, rot_goals) in zip(tgts, etas, prepared):
+            out = _optimize_sequence(feats, scaled, rot_goals, ref, t, eta, energy or EnergyConfig(), fps, opt_iters, opt_gn_iters,
+                                     device, smooth=opt_smooth)  # fmt: skip
+            out["base_pos"] = out["base_pos"] + shift
+            outs.append(out)
+    results = []
+    for t, eta, (_, scaled, shift, _), out, label in zip(tgts, etas, prepared, outs, labels):
+        motion = TargetMotion(t, fps, out["q"], out["base_pos"], out["base_rot"])
+        results.append(RetargetResult(motion, _reference_points(scaled, shift, eta), label, reference_nodes=scaled + shift,
+                                      reference_skeleton=ref))  # fmt: skip
+    return results
 
 
 def retarget_file(

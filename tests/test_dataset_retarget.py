@@ -15,7 +15,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 from hub_server import FakeHub
-from model_helpers import synthetic_csv
+from model_helpers import micro_checkpoint, synthetic_csv  # noqa: F401 (fixture)
 
 from mer_data.atomic import owner_tag
 from mer_data.errors import MerError
@@ -97,6 +97,35 @@ def _env(tmp_path) -> dict:
            "HF_HUB_DISABLE_TELEMETRY": "1"}  # fmt: skip
     env.pop("HF_HUB_OFFLINE", None)
     return env
+
+
+def test_the_model_retargets_each_clip_to_all_targets_in_one_pass(dataset, tmp_path, micro_checkpoint):  # noqa: F811
+    """``method="diffusion"``: clip by clip, every pending target in one pass, the reference encoded
+    once per window; each pair's result is what a one-target ``retarget_features`` call gives."""
+    from mer_models.checkpoint import resolve_model
+    from mer_models.long_horizon import clip_starts
+
+    ckpt = resolve_model(str(micro_checkpoint))
+    calls: list[int] = []
+    hook = ckpt.model.net.encoder.register_forward_hook(lambda mod, args, out: calls.append(out.shape[0]))
+    try:
+        res = retarget_dataset(str(dataset), "g1", ["h1", "tron1"], tmp_path / "out", method="diffusion", checkpoint=ckpt, steps=1)
+    finally:
+        hook.remove()
+    assert res["done_now"] == 6 and res["frames"] == 2 * sum(CLIPS.values())
+    frames, overlap = ckpt.model.cfg.frames, ckpt.run.sampler.overlap
+    assert calls == [1] * sum(len(clip_starts(max(n, frames), frames, overlap)) for n in CLIPS.values())
+    for clip, n in CLIPS.items():
+        m = read_lafan1_csv(dataset / "g1" / f"{clip}.csv", "g1")
+        feats = source_features(m.base_pos, m.base_quat, m.node_angles(get_skeleton("g1")), get_skeleton("g1"), 30.0)
+        for t in ("h1", "tron1"):
+            one = retarget_features(feats, "g1", t, checkpoint=ckpt, steps=1)
+            want = sequence_metrics(feats, get_skeleton("g1"), one.motion)
+            row = json.loads((tmp_path / "out" / t / f"{clip}.metrics.json").read_text())
+            assert row["method"] == "diffusion" and row["frames"] == n
+            np.testing.assert_allclose(row["g_mpbpe"], want["g_mpbpe"], rtol=1e-4)
+            got = read_lafan1_csv(tmp_path / "out" / t / f"{clip}.csv", t)
+            np.testing.assert_allclose(got.base_pos, one.motion.base_pos, atol=1e-4)
 
 
 def test_a_killed_run_resumes_and_leaves_nothing_half_written(dataset, tmp_path):

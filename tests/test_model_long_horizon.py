@@ -98,3 +98,32 @@ def test_an_oracle_denoiser_reproduces_the_source_motion(monkeypatch):
     from mer_data.rotations import quat_to_matrix
 
     np.testing.assert_allclose(out["base_rot"], quat_to_matrix(torch.from_numpy(motion["base_quat"])).numpy(), atol=2e-5)
+
+
+def test_several_targets_in_one_pass_equal_one_target_calls():
+    """``retarget_sequences``: the reference encoded once per window for every target, and each
+    target's motion exactly what a one-target call gives (its own noise, in-painting across windows)."""
+    from mer_models.long_horizon import retarget_sequences
+
+    torch.manual_seed(0)
+    g1 = get_skeleton("g1")
+    model = RetargetModel(MICRO).eval()
+    with torch.no_grad():
+        for head in (model.net.base_head, model.net.joint_head):  # heads start at zero: make the network matter
+            head.weight.normal_(0, 0.3)
+            head.bias.normal_(0, 0.3)
+    ref = _features(g1, synthetic_motion(g1, 130, seed=2), 30.0)
+    targets = [get_skeleton(n) for n in ("h1", "tron1", "g1")]
+    sampler = SamplerConfig(steps=3, overlap=10, init_noise=1.0)  # Heun from noise
+    calls = []
+    hook = model.net.encoder.register_forward_hook(lambda mod, args, out: calls.append(out.shape[0]))
+    many = retarget_sequences(model, ref, g1, targets, sampler, seed=1)
+    windows = len(clip_starts(130, MICRO.frames, 10))
+    assert calls == [1] * windows  # once per window, not once per target
+    hook.remove()
+    for t, out in zip(targets, many):
+        one = retarget_sequence(model, ref, g1, t, sampler, seed=1)
+        assert out["q"].shape == one["q"].shape == (130, t.num_nodes)
+        for k in ("q", "base_pos", "base_rot"):
+            np.testing.assert_allclose(out[k], one[k], atol=1e-6, err_msg=f"{t.name} {k}")
+    assert not np.allclose(many[0]["q"][:, :5], 0, atol=1e-3)  # the network's output, not a constant
