@@ -84,32 +84,39 @@ def grpe_bias(q: torch.Tensor, k: torch.Tensor, psi: torch.Tensor, e_q: torch.Te
 
 
 class _Residual(nn.Module):
-    def __init__(self, hidden: int, dropout: float) -> None:
+    """A sub-layer's residual connection: post-norm ``LayerNorm(x + f(x))`` (the paper's) or, with
+    ``norm_first``, pre-norm ``x + f(LayerNorm(x))``; ``f`` reads :meth:`inputs` ``(x)``."""
+
+    def __init__(self, hidden: int, dropout: float, norm_first: bool = False) -> None:
         super().__init__()
         self.norm = nn.LayerNorm(hidden)
         self.drop = nn.Dropout(dropout)
+        self.norm_first = norm_first
+
+    def inputs(self, x: torch.Tensor) -> torch.Tensor:
+        return self.norm(x) if self.norm_first else x
 
     def forward(self, x: torch.Tensor, update: torch.Tensor) -> torch.Tensor:
-        return self.norm(x + self.drop(update))
+        return x + self.drop(update) if self.norm_first else self.norm(x + self.drop(update))
 
 
 class SpatialAttention(nn.Module):
     """Self-attention over the nodes of each frame with GRPE terms from ``psi``."""
 
-    def __init__(self, hidden: int, heads: int, dropout: float = 0.0) -> None:
+    def __init__(self, hidden: int, heads: int, dropout: float = 0.0, norm_first: bool = False) -> None:
         super().__init__()
         self.h, self.d = heads, hidden // heads
         self.qkv = nn.Linear(hidden, 3 * hidden)
         self.out = nn.Linear(hidden, hidden)
         self.e_q = nn.Parameter(torch.randn(NUM_RELATIONS, heads, self.d) * 0.02)
         self.e_k = nn.Parameter(torch.randn(NUM_RELATIONS, heads, self.d) * 0.02)
-        self.res = _Residual(hidden, dropout)
+        self.res = _Residual(hidden, dropout, norm_first)
         self.attn_drop = dropout
 
     def forward(self, x: torch.Tensor, psi: torch.Tensor, node_mask: torch.Tensor) -> torch.Tensor:
         """x (B, T, J, H); psi (B, J, J) long; node_mask (B, J) bool (True = real node)."""
         B, T, J, H = x.shape
-        q, k, v = self.qkv(x).view(B, T, J, 3, self.h, self.d).permute(3, 0, 1, 4, 2, 5)  # (B,T,h,J,d)
+        q, k, v = self.qkv(self.res.inputs(x)).view(B, T, J, 3, self.h, self.d).permute(3, 0, 1, 4, 2, 5)  # (B,T,h,J,d)
         bias = grpe_bias(q, k, psi[:, None], self.e_q, self.e_k) / math.sqrt(self.d)
         bias = bias.masked_fill(~node_mask[:, None, None, None, :], float("-inf"))
         o = attend(
@@ -126,18 +133,18 @@ class SpatialAttention(nn.Module):
 class TemporalAttention(nn.Module):
     """Self-attention over the frames of each node inside a window of ``T_w`` frames."""
 
-    def __init__(self, hidden: int, heads: int, window: int, dropout: float = 0.0) -> None:
+    def __init__(self, hidden: int, heads: int, window: int, dropout: float = 0.0, norm_first: bool = False) -> None:
         super().__init__()
         self.h, self.d, self.window = heads, hidden // heads, window
         self.qkv = nn.Linear(hidden, 3 * hidden)
         self.out = nn.Linear(hidden, hidden)
-        self.res = _Residual(hidden, dropout)
+        self.res = _Residual(hidden, dropout, norm_first)
         self.attn_drop = dropout
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """x (B, T, J, H)."""
         B, T, J, H = x.shape
-        qkv = self.qkv(x).view(B, T, J, 3, self.h, self.d).permute(3, 0, 2, 4, 1, 5)  # (3,B,J,h,T,d)
+        qkv = self.qkv(self.res.inputs(x)).view(B, T, J, 3, self.h, self.d).permute(3, 0, 2, 4, 1, 5)  # (3,B,J,h,T,d)
         q, k, v = (t.reshape(B * J, self.h, T, self.d) for t in qkv)
         mask = window_mask(T, self.window, x.device)
         o = attend(q, k, v, mask, self.attn_drop if self.training else 0.0)
@@ -176,6 +183,7 @@ class MultiConditionCrossAttention(nn.Module):
         heads_per_condition: int,
         head_dim: int,
         dropout: float = 0.0,
+        norm_first: bool = False,
     ) -> None:
         super().__init__()
         self.groups = nn.ModuleList(
@@ -184,7 +192,7 @@ class MultiConditionCrossAttention(nn.Module):
         self.ref_group = _HeadGroup(hidden, heads_per_condition, head_dim, False) if with_reference else None
         n = num_graph_conditions + int(with_reference)
         self.out = nn.Linear(n * heads_per_condition * head_dim, hidden)
-        self.res = _Residual(hidden, dropout)
+        self.res = _Residual(hidden, dropout, norm_first)
         self.h, self.d = heads_per_condition, head_dim
 
     def _graph(self, g: _HeadGroup, x, cond, psi, cond_mask):
@@ -223,9 +231,10 @@ class MultiConditionCrossAttention(nn.Module):
         node_mask (B, J); reference (B, T, Jr, H) and eta (B, J, Jr) when ``with_reference``."""
         if len(graph_conditions) != len(self.groups):
             raise ValueError(f"expected {len(self.groups)} graph conditions, got {len(graph_conditions)}")
-        parts = [self._graph(g, x, c, psi, node_mask) for g, c in zip(self.groups, graph_conditions)]
+        h = self.res.inputs(x)
+        parts = [self._graph(g, h, c, psi, node_mask) for g, c in zip(self.groups, graph_conditions)]
         if self.ref_group is not None:
             if reference is None or eta is None:
                 raise ValueError("this block needs the reference tokens and the joint map")
-            parts.append(self._reference(x, reference, eta))
+            parts.append(self._reference(h, reference, eta))
         return self.res(x, self.out(torch.cat(parts, -1)))

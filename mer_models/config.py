@@ -80,6 +80,9 @@ class ModelConfig:
             every node's goal position and velocity (angles 0). At high noise the output starts at
             the goals instead of at zero; at low noise ``D -> x`` as before. Checkpoints written
             before it existed load with ``False``.
+        norm_first: pre-norm layers, ``x + f(LayerNorm(x))`` with a final LayerNorm per decoder,
+            instead of the paper's post-norm ``LayerNorm(x + f(x))`` (default, and what checkpoints
+            written before it existed load with).
     """
 
     hidden: int = 240
@@ -95,13 +98,14 @@ class ModelConfig:
     vel_scale: float = 2.0
     goal_input: bool = False
     goal_prior: bool = False
+    norm_first: bool = False
 
     def __post_init__(self) -> None:
         c = "ModelConfig"
         for name in ("hidden", "layers", "heads", "cross_heads_per_condition", "ffn", "frames"):
             _check(isinstance(getattr(self, name), int) and getattr(self, name) > 0, c, name, "must be a positive integer")
         _check(self.hidden % self.heads == 0, c, "hidden", f"hidden={self.hidden} is not divisible by heads={self.heads}")
-        for name in ("goal_input", "goal_prior"):
+        for name in ("goal_input", "goal_prior", "norm_first"):
             _check(isinstance(getattr(self, name), bool), c, name, "must be true or false")
         _check(self.window % 2 == 1 and self.window >= 1, c, "window", f"window={self.window} must be odd and >= 1")
         _check(0.0 <= self.dropout < 1.0, c, "dropout", "must be in [0, 1)")
@@ -319,7 +323,7 @@ def preset(name: str) -> RunConfig:
 _SECTIONS = {"model": ModelConfig, "energy": EnergyConfig, "sampler": SamplerConfig, "train": TrainConfig}
 #: Fields added after checkpoints were first written, with the value that reproduces the older
 #: behaviour: a checkpoint without them loads with that value (and nothing else may be missing).
-_LEGACY = {ModelConfig: {"goal_input": False, "goal_prior": False}, EnergyConfig: {"w_ori": 0.0}, SamplerConfig: {"method": "heun", "init_noise": 1.0, "feedback_sigma": 0.3}, TrainConfig: {"lr_decay_steps": 0, "lr_min_ratio": 0.1, "start_frac": 0.0, "feedback_frac": 0.0}}
+_LEGACY = {ModelConfig: {"goal_input": False, "goal_prior": False, "norm_first": False}, EnergyConfig: {"w_ori": 0.0}, SamplerConfig: {"method": "heun", "init_noise": 1.0, "feedback_sigma": 0.3}, TrainConfig: {"lr_decay_steps": 0, "lr_min_ratio": 0.1, "start_frac": 0.0, "feedback_frac": 0.0}}
 
 
 def _section(cls, data: Any, where: str):

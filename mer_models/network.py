@@ -93,20 +93,23 @@ class DecoderLayer(nn.Module):
 
     def __init__(self, cfg: ModelConfig, with_reference: bool) -> None:
         super().__init__()
-        H = cfg.hidden
-        self.spatial = SpatialAttention(H, cfg.heads, cfg.dropout)
-        self.temporal = TemporalAttention(H, cfg.heads, cfg.window, cfg.dropout)
+        H, pre = cfg.hidden, cfg.norm_first
+        self.spatial = SpatialAttention(H, cfg.heads, cfg.dropout, pre)
+        self.temporal = TemporalAttention(H, cfg.heads, cfg.window, cfg.dropout, pre)
         self.cross = MultiConditionCrossAttention(
-            H, 3, with_reference, cfg.cross_heads_per_condition, cfg.head_dim, cfg.dropout
+            H, 3, with_reference, cfg.cross_heads_per_condition, cfg.head_dim, cfg.dropout, pre
         )
         self.ffn = nn.Sequential(nn.Linear(H, cfg.ffn), nn.GELU(), nn.Dropout(cfg.dropout), nn.Linear(cfg.ffn, H))
         self.norm = nn.LayerNorm(H)
         self.drop = nn.Dropout(cfg.dropout)
+        self.norm_first = pre
 
     def forward(self, x, g: BatchGraph, conds, reference=None, eta=None):
         x = self.spatial(x, g.psi, g.mask)
         x = self.temporal(x)
         x = self.cross(x, conds, g.psi, g.mask, reference, eta)
+        if self.norm_first:
+            return x + self.drop(self.ffn(self.norm(x)))
         return self.norm(x + self.drop(self.ffn(x)))
 
 
@@ -116,6 +119,7 @@ class Decoder(nn.Module):
         self.tokens = TokenEncoder(cfg.hidden)
         self.conditions = GraphConditions(cfg.hidden)
         self.layers = nn.ModuleList([DecoderLayer(cfg, with_reference) for _ in range(cfg.layers)])
+        self.final_norm = nn.LayerNorm(cfg.hidden) if cfg.norm_first else None  # pre-norm: the stream is not normalised
 
     def forward(self, x, g: BatchGraph, extra: torch.Tensor | None = None, reference=None, eta=None):
         h = self.tokens(x)
@@ -124,7 +128,7 @@ class Decoder(nn.Module):
         conds = self.conditions(g)
         for layer in self.layers:
             h = layer(h, g, conds, reference, eta)
-        return h
+        return h if self.final_norm is None else self.final_norm(h)
 
 
 class NoiseEmbedding(nn.Module):

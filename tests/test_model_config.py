@@ -90,8 +90,8 @@ def test_base_takes_the_goals_and_old_checkpoints_load_without_them():
     assert not (preset("paper").model.goal_input or preset("paper").model.goal_prior)
     d = json.loads(json.dumps(run.to_dict()))
     assert from_dict(d).model.goal_input is True
-    del d["model"]["goal_input"], d["model"]["goal_prior"]  # written before the fields existed
-    assert (from_dict(d).model.goal_input, from_dict(d).model.goal_prior) == (False, False)
+    del d["model"]["goal_input"], d["model"]["goal_prior"], d["model"]["norm_first"]  # written before the fields existed
+    assert (from_dict(d).model.goal_input, from_dict(d).model.goal_prior, from_dict(d).model.norm_first) == (False, False, False)
     d["model"]["goal_input"] = 1  # an integer is not a flag
     with pytest.raises(ConfigError, match="model.goal_input"):
         from_dict(d)

@@ -1,0 +1,109 @@
+"""Probe: can a configuration fit a handful of its own training samples, and how fast?
+
+Trains on ``--samples`` fixed samples of one (source, target) pair of the shards (URDF skeletons,
+with the shards' teacher; every ``--every``-th in shard order), the whole set as every batch, and after every ``--chunk`` steps reports
+the one-step (the checkpoint's sampler) g-mpbpe [m] on those samples ("fit") and on as many other
+samples of the same pair ("held"), next to the teacher's own g-mpbpe on the fitted samples (the
+floor: the model learns the teacher). A model that cannot get near the teacher on samples it sees
+at every step is limited by its optimisation or its representation, not by the amount of data.
+
+    PYTHONPATH=$PWD python tools/overfit_probe.py --shards SHARDS --out runs/probe [--source g1] [--target h1] \\
+        [--samples 16] [--every 5] [--steps 500] [--chunk 100] [--init mer_models/bundled/mer-base] [--config base] \\
+        [--lr 7e-4] [--start-frac F] [--norm-first] [--threads 1]
+
+Each chunk resumes the previous one exactly (``mer_models.train.train``); one JSON line per chunk
+is printed and appended to ``OUT.probe.jsonl``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import torch
+from torch.utils.data import Subset
+
+from mer_data.registry import get_skeleton
+from mer_data.samples import collate
+from mer_data.shards import ShardDataset
+from mer_models.checkpoint import resolve_model
+from mer_models.config import EnergyConfig, preset
+from mer_models.inference import optimize_batch, sample_conditions
+from mer_models.metrics import summarize, window_metrics
+from mer_models.train import train
+
+
+def g_mpbpe(motion, batch, keypoints) -> float:
+    return float(summarize(window_metrics(motion, batch, keypoints=keypoints))["g_mpbpe"]["mean"])
+
+
+def model_error(model_dir: str | Path, batch, keypoints) -> float:
+    ckpt = resolve_model(str(model_dir))
+    m = ckpt.model.eval()
+    with torch.no_grad():
+        cond = m.conditions(batch)
+        d = sample_conditions(m, cond, ckpt.run.sampler, energy=ckpt.run.energy)
+        return g_mpbpe(m.decode(d, cond), batch, keypoints)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--shards", required=True, nargs="+", help="shards with teacher files (mer shards solve)")
+    ap.add_argument("--out", required=True, help="checkpoint folder")
+    ap.add_argument("--source", default="g1")
+    ap.add_argument("--target", default="h1")
+    ap.add_argument("--samples", type=int, default=16)
+    ap.add_argument("--every", type=int, default=5, help="take every K-th sample of the pair (default 5)")
+    ap.add_argument("--steps", type=int, default=500)
+    ap.add_argument("--chunk", type=int, default=100)
+    ap.add_argument("--config", default="base")
+    ap.add_argument("--init", help="start from this checkpoint's weights (default: from scratch)")
+    ap.add_argument("--lr", type=float)
+    ap.add_argument("--start-frac", type=float)
+    ap.add_argument("--norm-first", action="store_true")
+    ap.add_argument("--threads", type=int, default=1)
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    ds = ShardDataset(args.shards, targets=[args.target], augmented=False, teacher=True)
+    idx = [i for i in range(len(ds)) if ds[i].reference_skeleton.name == args.source]
+    fit_idx = idx[:: args.every][: args.samples]  # every K-th window of the pair, in shard order
+    held_idx = idx[2 :: args.every][: args.samples]  # two windows later: the same clips, other frames
+    if len(held_idx) < args.samples:
+        raise SystemExit(f"{len(idx)} {args.source} -> {args.target} samples in the shards: too few for "
+                         f"{args.samples} samples every {args.every}; lower --every or --samples")  # fmt: skip
+    kp = {"base": 0, **get_skeleton(args.target).keypoints}
+    fit_batch, held_batch = collate([ds[i] for i in fit_idx]), collate([ds[i] for i in held_idx])
+    teacher = g_mpbpe(optimize_batch(EnergyConfig(), fit_batch), fit_batch, kp)
+    run = preset(args.config)
+    over = {"batch_size": args.samples, "save_every": args.chunk, "log_every": 10, "warmup": 20}
+    if args.lr is not None:
+        over["lr"] = args.lr
+    if args.start_frac is not None:
+        over["start_frac"] = args.start_frac
+    run = run.replace(train=dataclasses.replace(run.train, **over))
+    if args.norm_first:
+        run = run.replace(model=dataclasses.replace(run.model, norm_first=True))
+    out = Path(args.out)
+    log_path = out.parent / f"{out.name}.probe.jsonl"
+    first = {"step": 0, "teacher": teacher, "samples": args.samples, "pair": f"{args.source}->{args.target}"}
+    if args.init:
+        first.update(fit=model_error(args.init, fit_batch, kp), held=model_error(args.init, held_batch, kp))
+    print(json.dumps(first), flush=True)
+    with open(log_path, "a") as fh:
+        fh.write(json.dumps(first) + "\n")
+    for step in range(args.chunk, args.steps + 1, args.chunk):
+        t0 = time.process_time()
+        init = Path(args.init) / "model.safetensors" if args.init and step == args.chunk else None
+        train(run, Subset(ds, fit_idx), out, steps=step, resume=step > args.chunk, init=init)
+        row = {"step": step, "fit": model_error(out, fit_batch, kp), "held": model_error(out, held_batch, kp),
+               "teacher": teacher, "cpu_min": round((time.process_time() - t0) / 60, 2)}  # fmt: skip
+        print(json.dumps(row), flush=True)
+        with open(log_path, "a") as fh:
+            fh.write(json.dumps(row) + "\n")
+
+
+if __name__ == "__main__":
+    main()
