@@ -111,8 +111,8 @@ def retarget_sequences(
     """Retarget a whole motion with the model to several targets at once.
 
     Window by window, the reference encoder (which does not depend on the target) runs once, and
-    each target is sampled from its encoding in turn: retargeting one motion to eight robots costs
-    about half of eight one-target calls (``tools/bench_targets.py``). A padded batch of all
+    each target is sampled from its encoding in turn: retargeting one motion to eight robots took
+    65 % of the time of eight one-target calls (``tools/bench_targets.py``, docs/model.md). A padded batch of all
     targets was measured slower than this loop on the CPU (the padding to the largest robot's
     nodes costs more than the per-call overhead it saves). Each target has its own generator
     seeded with ``seed``, so its output is a one-target call's whichever targets it shares the
