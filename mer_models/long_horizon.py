@@ -106,6 +106,7 @@ def retarget_sequences(
     seed: int = 0,
     inpaint: bool = True,
     etas: Sequence[np.ndarray] | None = None,
+    prepared: Sequence[tuple] | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> list[dict[str, np.ndarray]]:
     """Retarget a whole motion with the model to several targets at once.
@@ -121,6 +122,7 @@ def retarget_sequences(
     Args:
         reference: (N, Jr, 9) features of the source motion in the world frame.
         ref, targets: the skeletons; ``etas`` (per target) default to :func:`mer_data.jointmap.joint_map`.
+        prepared: per target, :func:`prepare_reference` of ``reference`` when the caller has it.
         sampler: steps, noise schedule, guidance and ``overlap``.
         inpaint: False concatenates independently sampled clips (for comparison only).
         progress: called with (windows done, windows) of the motion.
@@ -139,10 +141,11 @@ def retarget_sequences(
     etas = [joint_map(t, ref) for t in targets] if etas is None else list(etas)
     if len(etas) != len(targets):
         raise ValueError(f"{len(etas)} joint maps for {len(targets)} targets")
-    scaled = []
-    for t in targets:
-        feats, s, shift, _ = prepare_reference(reference, ref, t)  # feats and shift do not depend on the target
-        scaled.append(s)
+    prepared = [prepare_reference(reference, ref, t) for t in targets] if prepared is None else list(prepared)
+    if len(prepared) != len(targets):
+        raise ValueError(f"{len(prepared)} prepared references for {len(targets)} targets")
+    feats, _, shift, _ = prepared[0]  # the shifted features and the shift do not depend on the target
+    scaled = [p[1] for p in prepared]
     pad = max(0, frames - n)
     if pad:
         feats = np.concatenate([feats, np.repeat(feats[-1:], pad, 0)])

@@ -190,7 +190,7 @@ def retarget_features_many(
         sampler = run.sampler if guidance is None else SamplerConfig(**{**run.sampler.__dict__, "guidance": float(guidance)})
         outs = retarget_sequences(
             checkpoint.model, reference, ref, tgts, sampler, energy=energy or run.energy, fps=fps, steps=steps,
-            seed=seed, etas=etas, progress=progress,
+            seed=seed, etas=etas, prepared=prepared, progress=progress,
         )  # fmt: skip
         if refine > 0:
             device = next(checkpoint.model.parameters()).device

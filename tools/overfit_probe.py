@@ -67,8 +67,12 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1)
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
-    ds = ShardDataset(args.shards, targets=[args.target], augmented=False, teacher=True)
-    idx = [i for i in range(len(ds)) if ds[i].reference_skeleton.name == args.source]
+    every = ShardDataset(args.shards, targets=[args.target], augmented=False, teacher=None)
+    paths = [p for p, f in zip(every.paths, every.files) if f.meta.robot == args.source]  # the source's shard files
+    if not paths:
+        raise SystemExit(f"no shard of source robot {args.source} in {args.shards} (sources: {', '.join(every.robots)})")
+    ds = ShardDataset(paths, targets=[args.target], augmented=False, teacher=True)
+    idx = list(range(len(ds)))
     fit_idx = idx[:: args.every][: args.samples]  # every K-th window of the pair, in shard order
     held_idx = idx[2 :: args.every][: args.samples]  # two windows later: the same clips, other frames
     if len(held_idx) < args.samples:
