@@ -239,6 +239,11 @@ class TrainConfig:
             sampler's start, made kinematically consistent, at ``sigma = sampler.feedback_sigma``;
             the network learns to correct its own errors (docs/model.md). These samples follow the
             ``start_frac`` ones; ``start_frac + feedback_frac <= 1``.
+        ref_group: samples per reference window in a batch (1: every sample drawn on its own).
+            With ``k`` > 1 a batch holds ``batch_size / k`` windows, each with ``k`` of its targets and
+            augmentations, and the reference encoder runs once per window (its output does not depend
+            on the target): a step costs less, a batch holds fewer distinct motions (docs/model.md).
+            Needs a dataset that knows its windows (:class:`mer_data.shards.ShardDataset`).
         opt_iters: refinement iterations of the optimisation baseline when it supplies ``x`` for a
             target without motion data (see docs/model.md).
         seed: seeds noise, data order and initialisation.
@@ -256,6 +261,7 @@ class TrainConfig:
     p_std: float = 1.5
     start_frac: float = 0.0
     feedback_frac: float = 0.0
+    ref_group: int = 1
     opt_iters: int = 20
     seed: int = 0
     log_every: int = 10
@@ -274,6 +280,9 @@ class TrainConfig:
         _check(isinstance(self.lr_decay_steps, int) and self.lr_decay_steps >= 0, c, "lr_decay_steps", "must be an integer >= 0")
         _check(0.0 <= self.lr_min_ratio <= 1.0, c, "lr_min_ratio", "must be in [0, 1]")
         _check(isinstance(self.opt_iters, int) and self.opt_iters >= 0, c, "opt_iters", "must be an integer >= 0")
+        _check(isinstance(self.ref_group, int) and self.ref_group >= 1, c, "ref_group", "must be an integer >= 1")
+        _check(self.batch_size % self.ref_group == 0, c, "ref_group",
+               f"batch_size {self.batch_size} is not a multiple of ref_group {self.ref_group}")
         _check_finite(self)
 
 
@@ -323,7 +332,7 @@ def preset(name: str) -> RunConfig:
 _SECTIONS = {"model": ModelConfig, "energy": EnergyConfig, "sampler": SamplerConfig, "train": TrainConfig}
 #: Fields added after checkpoints were first written, with the value that reproduces the older
 #: behaviour: a checkpoint without them loads with that value (and nothing else may be missing).
-_LEGACY = {ModelConfig: {"goal_input": False, "goal_prior": False, "norm_first": False}, EnergyConfig: {"w_ori": 0.0}, SamplerConfig: {"method": "heun", "init_noise": 1.0, "feedback_sigma": 0.3}, TrainConfig: {"lr_decay_steps": 0, "lr_min_ratio": 0.1, "start_frac": 0.0, "feedback_frac": 0.0}}
+_LEGACY = {ModelConfig: {"goal_input": False, "goal_prior": False, "norm_first": False}, EnergyConfig: {"w_ori": 0.0}, SamplerConfig: {"method": "heun", "init_noise": 1.0, "feedback_sigma": 0.3}, TrainConfig: {"lr_decay_steps": 0, "lr_min_ratio": 0.1, "start_frac": 0.0, "feedback_frac": 0.0, "ref_group": 1}}
 
 
 def _section(cls, data: Any, where: str):

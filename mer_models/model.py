@@ -14,7 +14,7 @@ by every denoising step.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -39,7 +39,7 @@ from .representation import (
     unwrap_rotvec,
 )
 
-__all__ = ["Conditions", "RetargetModel", "GOAL_DIM"]
+__all__ = ["Conditions", "RetargetModel", "GOAL_DIM", "shared_rows"]
 
 
 @dataclass
@@ -56,6 +56,9 @@ class Conditions:
         fps: frame rate [Hz].
         goal_rot: (B, T, Jr, 3, 3) orientation goals, canonical frame, and rot_mask (B, Jr) the
             reference nodes that carry one (None: no orientation term).
+        ref_shared: ``(first, inverse)`` of :func:`shared_rows` over the input references and their
+            skeletons: the samples whose reference is encoded (U,) and each sample's (B,) (None: every
+            sample is encoded).
         ref_tokens: the encoded reference (filled on first use, reused by every denoising step).
         goal_feats: (B, T, Jt, GOAL_DIM) the goal input of ``goal_input`` networks (filled on first use).
         prior: (B, T, Jt, 9) the goals as a sample, for ``goal_prior`` networks (filled on first use).
@@ -71,6 +74,7 @@ class Conditions:
     fps: float = 30.0
     goal_rot: torch.Tensor | None = None
     rot_mask: torch.Tensor | None = None
+    ref_shared: tuple[torch.Tensor, torch.Tensor] | None = None
     ref_tokens: torch.Tensor | None = None
     goal_feats: torch.Tensor | None = None
     prior: torch.Tensor | None = None
@@ -105,9 +109,17 @@ class RetargetModel(nn.Module):
         if "ref_goal_rot" in batch:
             goal_rot = rot[:, None, None] @ batch["ref_goal_rot"].to(dev, torch.float32)
             rot_mask = batch["ref_rot_mask"].to(dev)
+        ref_graph = graph_from_batch(batch, "ref", dev)
+        reference = normalize(ref_c, self.cfg) * batch["ref_mask"].to(dev)[:, None, :, None]
+        # samples with the same input reference (one window to several targets): decided on the
+        # batch's own values, as the canonical frame's arithmetic differs in the last bit between rows
+        first, inverse = shared_rows(ref, *(getattr(ref_graph, f.name) for f in fields(BatchGraph)))
+        if len(first) < ref.shape[0]:
+            reference = reference[first][inverse]  # bitwise one reference per group
         return Conditions(
-            reference=normalize(ref_c, self.cfg) * batch["ref_mask"].to(dev)[:, None, :, None],
-            ref_graph=graph_from_batch(batch, "ref", dev),
+            reference=reference,
+            ref_graph=ref_graph,
+            ref_shared=(first, inverse),
             tgt_graph=graph_from_batch(batch, "tgt", dev),
             eta=batch["joint_map"].to(dev, torch.float32),
             goal=transform_points(scaled, rot, origin),
@@ -129,8 +141,16 @@ class RetargetModel(nn.Module):
 
     # ---- denoiser ---------------------------------------------------------------------------
     def encode(self, cond: Conditions) -> torch.Tensor:
+        """(B, T, Jr, H) the encoded reference, computed on first use; samples that share a reference
+        (``cond.ref_shared``) are encoded once and share the tokens (the encoder sees each sample
+        alone, so this equals encoding every sample)."""
         if cond.ref_tokens is None:
-            cond.ref_tokens = self.net.encode_reference(cond.reference, cond.ref_graph)
+            if cond.ref_shared is not None and len(cond.ref_shared[0]) < cond.reference.shape[0]:
+                first, inverse = cond.ref_shared
+                tokens = self.net.encode_reference(cond.reference[first], cond.ref_graph.select(first))
+                cond.ref_tokens = torch.index_select(tokens, 0, inverse)
+            else:
+                cond.ref_tokens = self.net.encode_reference(cond.reference, cond.ref_graph)
         return cond.ref_tokens
 
     def goal_features(self, cond: Conditions) -> torch.Tensor:
@@ -291,6 +311,33 @@ class RetargetModel(nn.Module):
         from .pretrained import push_to_hub
 
         return push_to_hub(self, repo_id, **kwargs)
+
+
+def shared_rows(*tensors: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Samples that are equal in every tensor (each (B, ...)): ``first`` (U,) the first sample of each
+    distinct one, in batch order, and ``inverse`` (B,) the position in ``first`` of each sample's
+    (``x[first][inverse]`` equals ``x`` for every tensor given). Bitwise equality; NaN equals nothing.
+
+    Rows are matched by an integer checksum of their bits (exact: the same for equal rows wherever
+    they sit in the batch, which a floating-point sum is not), then compared in full."""
+    B = tensors[0].shape[0]
+    dev = tensors[0].device
+    rows = [t.detach().reshape(B, -1) for t in tensors]
+    h = torch.zeros(B, dtype=torch.int64, device=dev)
+    for r in rows:
+        bits = (r if r.dtype == torch.float32 else r.to(torch.float32)).view(torch.int32) if r.is_floating_point() else r.to(torch.int32)
+        w = torch.arange(r.shape[1], dtype=torch.int32, device=dev) % 32749 + 1
+        h = h + (bits * w).sum(1)  # int32 products wrap, the int64 sum is exact: no rounding, no order
+    match = h[:, None] == h[None, :]
+    idx = torch.arange(B, device=dev)
+    cand = match.to(torch.int8).argmax(1)  # the first row with the same checksum (itself at worst)
+    dup = torch.nonzero(cand != idx).flatten()
+    same = torch.ones(len(dup), dtype=torch.bool, device=dev)
+    for r in rows:
+        same &= (r[dup] == r[cand[dup]]).all(1)  # a checksum can collide, and NaN is unequal: compare in full
+    cand = cand.index_put((dup[~same],), dup[~same])
+    first, inverse = torch.unique(cand, return_inverse=True)  # sorted: batch order
+    return first, inverse
 
 
 def _descendants(parents: torch.Tensor) -> torch.Tensor:

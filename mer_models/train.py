@@ -33,7 +33,7 @@ import torch
 import torch.distributed as dist
 from safetensors.torch import load_file
 from torch import nn
-from torch.utils.data import DataLoader, Dataset
+from torch.utils.data import DataLoader, Dataset, Subset
 
 from mer_data.errors import CheckpointError, ConfigError
 from mer_data.registry import get_skeleton
@@ -50,7 +50,7 @@ from .representation import normalize, transform_features
 
 log = logging.getLogger(__name__)
 
-__all__ = ["train", "TrainResult", "clean_samples", "native_bf16", "LOG_FILE"]
+__all__ = ["train", "TrainResult", "clean_samples", "native_bf16", "reference_groups", "LOG_FILE"]
 
 LOG_FILE = "train_log.jsonl"
 
@@ -77,9 +77,18 @@ class _Step(nn.Module):
 class _OrderSampler:
     """Global batches of indices from step ``start`` on: epoch ``e`` is the permutation drawn from
     (seed, e), cut into ``n // batch`` batches (the remainder is dropped); this rank takes every
-    ``world``-th index of each batch. A pure function of the step, so resuming needs only the step."""
+    ``world``-th index of each batch. A pure function of the step, so resuming needs only the step.
 
-    def __init__(self, n: int, batch: int, seed: int, start: int, rank: int, world: int) -> None:
+    With ``groups`` (the sample indices of each reference window) and ``group`` = k > 1
+    (``TrainConfig.ref_group``), epoch ``e`` permutes each window's samples and cuts them into
+    chunks of k (a remainder of fewer than k sits the epoch out), permutes the chunks and cuts them
+    into batches of ``batch / k`` chunks; this rank takes every ``world``-th chunk of each batch.
+    """
+
+    def __init__(
+        self, n: int, batch: int, seed: int, start: int, rank: int, world: int,
+        groups: list[np.ndarray] | None = None, group: int = 1,
+    ) -> None:  # fmt: skip
         if n < batch:
             raise ConfigError(
                 f"the dataset has {n} samples, fewer than one batch of {batch}",
@@ -87,16 +96,71 @@ class _OrderSampler:
                 fix="use a smaller --batch-size or more data",
             )
         self.n, self.batch, self.seed, self.start, self.rank, self.world = n, batch, seed, start, rank, world
+        self.group = group
         self.per_epoch = n // batch
+        self._chunks: tuple[int, np.ndarray] | None = None  # (epoch, its chunks)
+        if group > 1:
+            if groups is None:
+                raise ValueError("group > 1 needs the groups")
+            if (batch // group) % world:
+                raise ConfigError(
+                    f"{batch // group} windows per batch (batch_size {batch} / ref_group {group}) do not split "
+                    f"evenly across {world} processes",
+                    element="train.ref_group",
+                    fix="choose batch_size / ref_group divisible by the number of processes",
+                )
+            self.groups = [np.asarray(g, dtype=np.int64) for g in groups]
+            self.per_epoch = sum(len(g) // group for g in self.groups) // (batch // group)
+            if self.per_epoch == 0:
+                raise ConfigError(
+                    f"no batch of {batch // group} windows with {group} samples each: the dataset's windows "
+                    f"have {max((len(g) for g in self.groups), default=0)} samples at most",
+                    element="train.ref_group",
+                    fix="use a smaller ref_group or batch_size",
+                )
+
+    def _epoch_chunks(self, epoch: int, rng: np.random.Generator) -> np.ndarray:
+        """(chunks, group) sample indices of one epoch, in its order."""
+        if self._chunks is None or self._chunks[0] != epoch:
+            k = self.group
+            parts = [rng.permutation(g)[: len(g) // k * k].reshape(-1, k) for g in self.groups]
+            chunks = np.concatenate(parts)
+            self._chunks = (epoch, chunks[rng.permutation(len(chunks))])
+        return self._chunks[1]
+
+    def batch_at(self, step: int) -> list[int]:
+        """This rank's sample indices of global batch ``step``."""
+        epoch, k = divmod(step, self.per_epoch)
+        rng = np.random.default_rng([self.seed, epoch])
+        if self.group == 1:
+            idx = rng.permutation(self.n)[k * self.batch : (k + 1) * self.batch]
+            return [int(i) for i in idx[self.rank :: self.world]]
+        per = self.batch // self.group
+        chunks = self._epoch_chunks(epoch, rng)[k * per : (k + 1) * per]
+        return [int(i) for i in chunks[self.rank :: self.world].reshape(-1)]
 
     def __iter__(self):
         step = self.start
         while True:
-            epoch, k = divmod(step, self.per_epoch)
-            order = np.random.default_rng([self.seed, epoch]).permutation(self.n)
-            idx = order[k * self.batch : (k + 1) * self.batch]
-            yield [int(i) for i in idx[self.rank :: self.world]]
+            yield self.batch_at(step)
             step += 1
+
+
+def reference_groups(dataset: Dataset) -> list[np.ndarray]:
+    """The sample indices of ``dataset`` that share one reference window, per window
+    (:meth:`mer_data.shards.ShardDataset.reference_groups`; a ``Subset`` of one keeps its own)."""
+    if hasattr(dataset, "reference_groups"):
+        return dataset.reference_groups()
+    if isinstance(dataset, Subset) and hasattr(dataset.dataset, "reference_groups"):
+        pos = {int(i): p for p, i in enumerate(dataset.indices)}
+        groups = [np.array([pos[int(i)] for i in g if int(i) in pos], dtype=np.int64) for g in dataset.dataset.reference_groups()]
+        return [g for g in groups if len(g)]
+    raise ConfigError(
+        f"train.ref_group > 1 needs a dataset that knows which samples share a reference window; "
+        f"{type(dataset).__name__} does not",
+        element="train.ref_group",
+        fix="train on a ShardDataset (or a Subset of one), or set ref_group to 1",
+    )
 
 
 def clean_samples(model: RetargetModel, batch: Mapping, cond: Conditions, run: RunConfig) -> torch.Tensor:
@@ -315,7 +379,9 @@ def train(
     net: nn.Module = _Step(model)
     if world > 1:
         net = nn.parallel.DistributedDataParallel(net)
-    sampler = _OrderSampler(len(dataset), run.train.batch_size, run.train.seed, step, rank, world)
+    k_ref = run.train.ref_group
+    groups = reference_groups(dataset) if k_ref > 1 else None
+    sampler = _OrderSampler(len(dataset), run.train.batch_size, run.train.seed, step, rank, world, groups, k_ref)
     start_step = step
     loader = iter(DataLoader(dataset, batch_sampler=sampler, collate_fn=collate, num_workers=num_workers))
     logf = out / LOG_FILE

@@ -28,6 +28,14 @@ def test_train_command_writes_a_checkpoint(tmp_path, capsys):
     assert meta["run"]["name"] == "tiny" and meta["data"]["synthetic"] == 8
 
 
+def test_train_ref_group_needs_shards(tmp_path, capsys):
+    code, _, err = run(capsys, "train", "--config", "tiny", "--synthetic", "8", "--steps", "1", "--batch-size", "4",
+                       "--ref-group", "2", "--out", tmp_path / "c")  # fmt: skip
+    assert code == 1 and err.startswith("error:"), err
+    assert "train.ref_group" in err and "ShardDataset" in err, err
+    assert not (tmp_path / "c").exists()
+
+
 def test_retarget_writes_every_output_within_limits(tmp_path, capsys, micro_checkpoint):  # noqa: F811
     src = synthetic_csv(tmp_path / "walk.csv")
     out = tmp_path / "out"

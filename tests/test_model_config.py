@@ -105,3 +105,13 @@ def test_feedback_frac_shares_the_batch_with_start_frac_and_old_checkpoints_load
     del d["train"]["feedback_frac"], d["sampler"]["feedback_sigma"]  # written before the fields existed
     run = from_dict(d)
     assert run.train.feedback_frac == 0.0 and run.sampler.feedback_sigma == SamplerConfig().feedback_sigma
+
+
+def test_ref_group_divides_the_batch_and_old_checkpoints_load_ungrouped():
+    assert TrainConfig(batch_size=16, ref_group=4).ref_group == 4
+    for bad in (0, 3, 2.0):
+        with pytest.raises(ConfigError, match="ref_group"):
+            TrainConfig(batch_size=16, ref_group=bad)
+    d = json.loads(json.dumps(preset("base").to_dict()))
+    del d["train"]["ref_group"]  # written before the field existed
+    assert from_dict(d).train.ref_group == 1

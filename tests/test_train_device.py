@@ -18,12 +18,13 @@ REPO = Path(__file__).resolve().parents[1]
 def test_dry_run_writes_weights_log_and_teacher(tmp_path):
     out, work = tmp_path / "out", tmp_path / "work"
     env = {**os.environ, "OUT": str(out), "WORK": str(work), "PYTHON": sys.executable, "OMP_NUM_THREADS": "1"}
-    r = subprocess.run(["bash", str(REPO / "tools" / "train_device.sh"), "--dry-run"], env=env, capture_output=True, text=True, timeout=600)
+    r = subprocess.run(["bash", str(REPO / "tools" / "train_device.sh"), "--dry-run", "--ref-group", "2"], env=env,
+                       capture_output=True, text=True, timeout=600)  # fmt: skip
     assert r.returncode == 0, (r.stdout + r.stderr)[-3000:]
     for name in ("config.json", "model.safetensors", "train_log.jsonl", "run.learning_curve.jsonl", "teacher.json", "log.txt"):
         assert (out / name).is_file(), name
     cfg = json.loads((out / "config.json").read_text())
-    assert cfg["step"] == 2 and cfg["run"]["name"] == "base"
+    assert cfg["step"] == 2 and cfg["run"]["name"] == "base" and cfg["run"]["train"]["ref_group"] == 2
     teacher = json.loads((out / "teacher.json").read_text())
     assert len(teacher) == 2 and all(t["status"] == "solved" and t["frames_per_s"] > 0 for t in teacher)
     assert cfg["data"]["teacher"] is True

@@ -74,6 +74,8 @@ def run_curve(cfg_name: str, args, out: Path, minutes: float) -> list[dict]:
         run = run.replace(sampler=dataclasses.replace(run.sampler, feedback_sigma=args.feedback_sigma))
     if args.norm_first:
         run = run.replace(model=dataclasses.replace(run.model, norm_first=True))
+    if args.ref_group:
+        run = run.replace(train=dataclasses.replace(run.train, ref_group=args.ref_group))
     run = run.replace(train=dataclasses.replace(run.train, save_every=args.chunk_steps, log_every=min(10, args.chunk_steps)))
     ds = ShardDataset(args.shards, teacher=True)
     curve_path = out.parent / f"{out.name}.learning_curve.jsonl"  # beside the folder: a checkpoint save replaces the folder
@@ -122,6 +124,7 @@ def main() -> int:
     ap.add_argument("--init", metavar="DIR", help="start from this checkpoint's weights (fresh optimiser), e.g. the bundled "
                     "mer-base, to continue training in a session that lacks the run folder")
     ap.add_argument("--norm-first", action="store_true", help="pre-norm layers (ModelConfig.norm_first) instead of the preset's post-norm")
+    ap.add_argument("--ref-group", type=int, help="samples per reference window in a batch (TrainConfig.ref_group)")
     ap.add_argument("--bf16", action="store_true", help="bfloat16 autocast (GPUs; CPUs with AMX or AVX512-BF16 only)")
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--clock", choices=["cpu", "wall"], default="cpu",

@@ -9,7 +9,7 @@ at every step is limited by its optimisation or its representation, not by the a
 
     PYTHONPATH=$PWD python tools/overfit_probe.py --shards SHARDS --out runs/probe [--source g1] [--target h1] \\
         [--samples 16] [--every 5] [--steps 500] [--chunk 100] [--init mer_models/bundled/mer-base] [--config base] \\
-        [--lr 7e-4] [--start-frac F] [--norm-first] [--threads 1]
+        [--lr 7e-4] [--lr-decay-steps N] [--lr-min-ratio R] [--grad-clip C] [--lam L] [--start-frac F] [--norm-first] [--layers N] [--hidden H] [--diagnose] [--threads 1]
 
 Each chunk resumes the previous one exactly (``mer_models.train.train``); one JSON line per chunk
 is printed and appended to ``OUT.probe.jsonl``.
@@ -33,7 +33,7 @@ from mer_models.checkpoint import resolve_model
 from mer_models.config import EnergyConfig, preset
 from mer_models.inference import optimize_batch, sample_conditions
 from mer_models.metrics import summarize, window_metrics
-from mer_models.train import train
+from mer_models.train import clean_samples, train
 
 
 def g_mpbpe(motion, batch, keypoints) -> float:
@@ -49,6 +49,27 @@ def model_error(model_dir: str | Path, batch, keypoints) -> float:
         return g_mpbpe(m.decode(d, cond), batch, keypoints)
 
 
+def where_the_error_sits(model_dir: str | Path, batch, keypoints) -> dict[str, float]:
+    """The model's motion on ``batch`` against the teacher's: mean |angle difference| over actuated
+    joints [rad], mean base position difference [m], and the g-mpbpe [m] of the teacher's angles
+    under the model's base pose and of the model's angles on the teacher's base pose."""
+    ckpt = resolve_model(str(model_dir))
+    m = ckpt.model.eval()
+    with torch.no_grad():
+        cond = m.conditions(batch)
+        mine = m.decode(sample_conditions(m, cond, ckpt.run.sampler, energy=ckpt.run.energy), cond)
+        taught = m.decode(clean_samples(m, batch, cond, ckpt.run), cond)
+        dof = cond.tgt_graph.dof[:, None].to(mine["q"].dtype)
+        base = {"base_pos": mine["base_pos"], "base_rot": mine["base_rot"]}
+        return {
+            "angle_rad": float(((mine["q"] - taught["q"]).abs() * dof).sum() / (dof.sum() * mine["q"].shape[1])),
+            "base_m": float((mine["base_pos"] - taught["base_pos"]).norm(dim=-1).mean()),
+            "teacher_angles_model_base": g_mpbpe({"q": taught["q"], **base}, batch, keypoints),
+            "model_angles_teacher_base": g_mpbpe({"q": mine["q"], "base_pos": taught["base_pos"],
+                                                  "base_rot": taught["base_rot"]}, batch, keypoints),  # fmt: skip
+        }
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--shards", required=True, nargs="+", help="shards with teacher files (mer shards solve)")
@@ -62,8 +83,16 @@ def main() -> None:
     ap.add_argument("--config", default="base")
     ap.add_argument("--init", help="start from this checkpoint's weights (default: from scratch)")
     ap.add_argument("--lr", type=float)
+    ap.add_argument("--lr-decay-steps", type=int, help="cosine decay of the rate over N steps after the warm-up (default: constant)")
+    ap.add_argument("--lr-min-ratio", type=float, help="the decayed rate as a share of --lr (default: the preset's)")
+    ap.add_argument("--grad-clip", type=float, help="gradient norm clip (default: the preset's)")
+    ap.add_argument("--lam", type=float, help="weight of the energy term in the loss (default: the preset's EnergyConfig.lam)")
     ap.add_argument("--start-frac", type=float)
     ap.add_argument("--norm-first", action="store_true")
+    ap.add_argument("--layers", type=int, help="layers per decoder (default: the preset's; from scratch only)")
+    ap.add_argument("--hidden", type=int, help="token width (default: the preset's; from scratch only)")
+    ap.add_argument("--diagnose", action="store_true", help="also report where the fitted samples' error sits "
+                    "(angles and base against the teacher's, each swapped in turn)")
     ap.add_argument("--threads", type=int, default=1)
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -82,19 +111,27 @@ def main() -> None:
     fit_batch, held_batch = collate([ds[i] for i in fit_idx]), collate([ds[i] for i in held_idx])
     teacher = g_mpbpe(optimize_batch(EnergyConfig(), fit_batch), fit_batch, kp)
     run = preset(args.config)
-    over = {"batch_size": args.samples, "save_every": args.chunk, "log_every": 10, "warmup": 20}
-    if args.lr is not None:
-        over["lr"] = args.lr
+    over = {"batch_size": args.samples, "save_every": args.chunk, "log_every": 10, "warmup": 20, "lr_decay_steps": 0}
+    for key in ("lr", "lr_decay_steps", "lr_min_ratio", "grad_clip"):
+        if getattr(args, key) is not None:
+            over[key] = getattr(args, key)
     if args.start_frac is not None:
         over["start_frac"] = args.start_frac
     run = run.replace(train=dataclasses.replace(run.train, **over))
     if args.norm_first:
         run = run.replace(model=dataclasses.replace(run.model, norm_first=True))
+    for key in ("layers", "hidden"):
+        if getattr(args, key) is not None:
+            run = run.replace(model=dataclasses.replace(run.model, **{key: getattr(args, key)}))
+    if args.lam is not None:
+        run = run.replace(energy=dataclasses.replace(run.energy, lam=args.lam))
     out = Path(args.out)
     log_path = out.parent / f"{out.name}.probe.jsonl"
     first = {"step": 0, "teacher": teacher, "samples": args.samples, "pair": f"{args.source}->{args.target}"}
     if args.init:
         first.update(fit=model_error(args.init, fit_batch, kp), held=model_error(args.init, held_batch, kp))
+        if args.diagnose:
+            first.update(where_the_error_sits(args.init, fit_batch, kp))
     print(json.dumps(first), flush=True)
     with open(log_path, "a") as fh:
         fh.write(json.dumps(first) + "\n")
@@ -104,6 +141,8 @@ def main() -> None:
         train(run, Subset(ds, fit_idx), out, steps=step, resume=step > args.chunk, init=init)
         row = {"step": step, "fit": model_error(out, fit_batch, kp), "held": model_error(out, held_batch, kp),
                "teacher": teacher, "cpu_min": round((time.process_time() - t0) / 60, 2)}  # fmt: skip
+        if args.diagnose:
+            row.update(where_the_error_sits(out, fit_batch, kp))
         print(json.dumps(row), flush=True)
         with open(log_path, "a") as fh:
             fh.write(json.dumps(row) + "\n")

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Train mer-base (or the paper configuration) on one accelerator in about 9 minutes; results in $OUT.
 #
-#   OUT=/path/to/out tools/train_device.sh [--config base|paper] [--minutes M] [--eval-input DIR]
+#   OUT=/path/to/out tools/train_device.sh [--config base|paper] [--minutes M] [--eval-input DIR] [--ref-group K]
 #   OUT=/tmp/x tools/train_device.sh --dry-run        # CPU, 2 training steps (tests/test_train_device.py)
 #
 # Steps (each on synthetic motion generated in code: the weights carry no LAFAN1 licence):
@@ -15,13 +15,14 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 : "${OUT:?set OUT to the output folder}"
-CONFIG=base MINUTES=5 EVAL_INPUT="" DRY=0 DEVICE=cuda CLIPS=8 STEPS_CHUNK=400 BATCH=()
+CONFIG=base MINUTES=5 EVAL_INPUT="" DRY=0 DEVICE=cuda CLIPS=8 STEPS_CHUNK=400 BATCH=() GROUP=()
 while [ $# -gt 0 ]; do
   case "$1" in
     --config) CONFIG=$2; shift 2 ;;
     --minutes) MINUTES=$2; shift 2 ;;
     --eval-input) EVAL_INPUT=$2; shift 2 ;;
     --dry-run) DRY=1; shift ;;
+    --ref-group) GROUP=(--ref-group "$2"); shift 2 ;;  # samples per window in a batch (TrainConfig.ref_group)
     *) echo "unknown option $1 (see the header of $0)" >&2; exit 2 ;;
   esac
 done
@@ -55,7 +56,7 @@ t1=$(date +%s)
 EVAL=()
 if [ -n "$EVAL_INPUT" ]; then EVAL=(--eval-input "$EVAL_INPUT" --eval-targets g1 h1 atlas --eval-windows 16); fi
 $PY tools/learning_curve.py --config "$CONFIG" --shards "$WORK/shards" --out "$WORK/run" --device "$DEVICE" "${BF16[@]}" \
-  --clock wall --max-minutes "$MINUTES" --chunk-steps "$STEPS_CHUNK" "${BATCH[@]}" "${EVAL[@]}"
+  --clock wall --max-minutes "$MINUTES" --chunk-steps "$STEPS_CHUNK" "${BATCH[@]}" "${GROUP[@]}" "${EVAL[@]}"
 echo "train_device: training in $(( $(date +%s) - t1 )) s"
 cp "$WORK/run/config.json" "$WORK/run/model.safetensors" "$WORK/run/train_log.jsonl" "$WORK/run.learning_curve.jsonl" "$OUT/"
 if [ -n "$EVAL_INPUT" ]; then

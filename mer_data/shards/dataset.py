@@ -275,6 +275,16 @@ class ShardDataset(torch.utils.data.Dataset):
         row, k = divmod(j, len(ks))
         return self._sample(self.windows[self._first[fi] + row], ks[k])
 
+    def reference_groups(self) -> list[np.ndarray]:
+        """The sample indices of each window (every target and augmentation of one reference
+        motion), one int64 array per window with samples, in index order; the arrays partition
+        ``range(len(self))``. Samples of one group share their reference features and skeleton."""
+        out = []
+        for (fi, ks), start in zip(self._blocks, self._starts):
+            n = len(ks)
+            out += [np.arange(start + row * n, start + (row + 1) * n, dtype=np.int64) for row in range(self.files[fi].num_rows)]
+        return out
+
     def locate(self, i: int) -> tuple[WindowRef, int]:
         """(window, sample slot ``k``) of sample ``i``."""
         b = bisect.bisect_right(self._starts, i) - 1

@@ -30,6 +30,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--targets", nargs="+", help="only these target robots (default: all in the shards)")
     p.add_argument("--source", default="g1", help="reference robot of --synthetic data")
     p.add_argument("--workers", type=int, default=0, help="DataLoader worker processes")
+    p.add_argument("--ref-group", type=int, help="samples per reference window in a batch, sharing one reference "
+                   "encoding (--shards only; default: the preset's, 1; docs/model.md)")
     p.set_defaults(func=cmd_train)
 
 
@@ -49,7 +51,8 @@ def cmd_train(args) -> int:
 
     run = preset(args.config)
     over = {k: v for k, v in {"batch_size": args.batch_size, "lr": args.lr, "seed": args.seed,
-                               "save_every": args.save_every, "log_every": args.log_every}.items() if v is not None}  # fmt: skip
+                               "save_every": args.save_every, "log_every": args.log_every,
+                               "ref_group": args.ref_group}.items() if v is not None}  # fmt: skip
     if over:
         run = run.replace(train=dataclasses.replace(run.train, **over))
     if args.steps < 1:
