@@ -8,8 +8,8 @@ Each round trains every grouping for ``--steps`` steps from the same weights (th
 :func:`mer_models.train.train`, logging every step); a step's time is the gap between two log
 records (load + collate + conditions + teacher + forward + energy + backward + AdamW). The first
 step of each run is left out (allocation, caches). Rounds alternate the groupings so that a busy
-neighbour on a shared machine slows them alike; the median over all rounds is reported, with
-its ratio to ``ref_group`` 1 and the reference encoder's share of the samples it encodes.
+neighbour on a shared machine slows them alike; the median over all rounds is reported with its
+ratio to ``ref_group`` 1 (docs/model.md, Training: batches grouped by reference window).
 """
 
 from __future__ import annotations
