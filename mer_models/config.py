@@ -222,7 +222,7 @@ class TrainConfig:
     """Optimisation.
 
     Attributes:
-        batch_size: windows per step (summed over DDP ranks: each rank takes ``batch_size / world``).
+        batch_size: samples per step (summed over DDP ranks: each rank takes ``batch_size / world``).
         lr, weight_decay, warmup, grad_clip: AdamW with linear warm-up, then constant, or (when
             ``lr_decay_steps`` > 0) a cosine decay from ``lr`` to ``lr * lr_min_ratio`` over that many
             steps after the warm-up, constant after (``mer-base``'s curve was flat at a constant rate).
