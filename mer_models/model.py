@@ -100,8 +100,17 @@ class RetargetModel(nn.Module):
         """Canonical-frame conditions of a collated batch (:func:`mer_data.samples.collate`)."""
         dev = next(self.parameters()).device
         ref = batch["reference"].to(dev, torch.float32)
-        rot = canonical_rotation(ref)
-        ref_c = transform_features(ref, rot, base_origin(ref))
+        ref_graph = graph_from_batch(batch, "ref", dev)
+        # samples with the same input reference (one window to several targets) get one canonical
+        # frame and one encoding (the frame's arithmetic is not bitwise the same across batch rows)
+        first, inverse = shared_rows(ref, *(getattr(ref_graph, f.name) for f in fields(BatchGraph)))
+        shared = len(first) < ref.shape[0]
+        own = ref[first] if shared else ref
+        rot = canonical_rotation(own)
+        reference = normalize(transform_features(own, rot, base_origin(own)), self.cfg)
+        if shared:
+            rot, reference = rot[inverse], reference[inverse]
+        reference = reference * batch["ref_mask"].to(dev)[:, None, :, None]
         scaled = batch["ref_scaled_pos"].to(dev, torch.float32)
         origin = scaled[:, 0, 0].clone()
         origin[:, 2] = 0
@@ -109,13 +118,6 @@ class RetargetModel(nn.Module):
         if "ref_goal_rot" in batch:
             goal_rot = rot[:, None, None] @ batch["ref_goal_rot"].to(dev, torch.float32)
             rot_mask = batch["ref_rot_mask"].to(dev)
-        ref_graph = graph_from_batch(batch, "ref", dev)
-        reference = normalize(ref_c, self.cfg) * batch["ref_mask"].to(dev)[:, None, :, None]
-        # samples with the same input reference (one window to several targets): decided on the
-        # batch's own values, as the canonical frame's arithmetic differs in the last bit between rows
-        first, inverse = shared_rows(ref, *(getattr(ref_graph, f.name) for f in fields(BatchGraph)))
-        if len(first) < ref.shape[0]:
-            reference = reference[first][inverse]  # bitwise one reference per group
         return Conditions(
             reference=reference,
             ref_graph=ref_graph,

@@ -40,34 +40,35 @@ def g_mpbpe(motion, batch, keypoints) -> float:
     return float(summarize(window_metrics(motion, batch, keypoints=keypoints))["g_mpbpe"]["mean"])
 
 
-def model_error(model_dir: str | Path, batch, keypoints) -> float:
+def _model_motion(model_dir: str | Path, batch):
+    """(model, its conditions of ``batch``, checkpoint, its one-sampler motion)."""
     ckpt = resolve_model(str(model_dir))
     m = ckpt.model.eval()
     with torch.no_grad():
         cond = m.conditions(batch)
-        d = sample_conditions(m, cond, ckpt.run.sampler, energy=ckpt.run.energy)
-        return g_mpbpe(m.decode(d, cond), batch, keypoints)
+        return m, cond, ckpt, m.decode(sample_conditions(m, cond, ckpt.run.sampler, energy=ckpt.run.energy), cond)
+
+
+def model_error(model_dir: str | Path, batch, keypoints) -> float:
+    return g_mpbpe(_model_motion(model_dir, batch)[3], batch, keypoints)
 
 
 def where_the_error_sits(model_dir: str | Path, batch, keypoints) -> dict[str, float]:
     """The model's motion on ``batch`` against the teacher's: mean |angle difference| over actuated
     joints [rad], mean base position difference [m], and the g-mpbpe [m] of the teacher's angles
     under the model's base pose and of the model's angles on the teacher's base pose."""
-    ckpt = resolve_model(str(model_dir))
-    m = ckpt.model.eval()
+    m, cond, ckpt, mine = _model_motion(model_dir, batch)
     with torch.no_grad():
-        cond = m.conditions(batch)
-        mine = m.decode(sample_conditions(m, cond, ckpt.run.sampler, energy=ckpt.run.energy), cond)
         taught = m.decode(clean_samples(m, batch, cond, ckpt.run), cond)
-        dof = cond.tgt_graph.dof[:, None].to(mine["q"].dtype)
-        base = {"base_pos": mine["base_pos"], "base_rot": mine["base_rot"]}
-        return {
-            "angle_rad": float(((mine["q"] - taught["q"]).abs() * dof).sum() / (dof.sum() * mine["q"].shape[1])),
-            "base_m": float((mine["base_pos"] - taught["base_pos"]).norm(dim=-1).mean()),
-            "teacher_angles_model_base": g_mpbpe({"q": taught["q"], **base}, batch, keypoints),
-            "model_angles_teacher_base": g_mpbpe({"q": mine["q"], "base_pos": taught["base_pos"],
-                                                  "base_rot": taught["base_rot"]}, batch, keypoints),  # fmt: skip
-        }
+    dof = cond.tgt_graph.dof[:, None].to(mine["q"].dtype)
+    base = {"base_pos": mine["base_pos"], "base_rot": mine["base_rot"]}
+    return {
+        "angle_rad": float(((mine["q"] - taught["q"]).abs() * dof).sum() / (dof.sum() * mine["q"].shape[1])),
+        "base_m": float((mine["base_pos"] - taught["base_pos"]).norm(dim=-1).mean()),
+        "teacher_angles_model_base": g_mpbpe({"q": taught["q"], **base}, batch, keypoints),
+        "model_angles_teacher_base": g_mpbpe({"q": mine["q"], "base_pos": taught["base_pos"],
+                                              "base_rot": taught["base_rot"]}, batch, keypoints),  # fmt: skip
+    }
 
 
 def main() -> None:
