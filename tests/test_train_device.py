@@ -18,8 +18,10 @@ REPO = Path(__file__).resolve().parents[1]
 def test_dry_run_writes_weights_log_and_teacher(tmp_path):
     out, work = tmp_path / "out", tmp_path / "work"
     env = {**os.environ, "OUT": str(out), "WORK": str(work), "PYTHON": sys.executable, "OMP_NUM_THREADS": "1"}
-    r = subprocess.run(["bash", str(REPO / "tools" / "train_device.sh"), "--dry-run", "--ref-group", "2"], env=env,
-                       capture_output=True, text=True, timeout=600)  # fmt: skip
+    bundled = REPO / "mer_models" / "bundled" / "mer-base"
+    cmd = ["bash", str(REPO / "tools" / "train_device.sh"), "--dry-run", "--ref-group", "2", "--init", str(bundled),
+           "--lr", "1e-5", "--warmup", "1", "--lr-decay-steps", "10", "--lr-min-ratio", "0.05"]
+    r = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, (r.stdout + r.stderr)[-3000:]
     for name in ("config.json", "model.safetensors", "train_log.jsonl", "run.learning_curve.jsonl", "teacher.json", "log.txt"):
         assert (out / name).is_file(), name
@@ -28,6 +30,14 @@ def test_dry_run_writes_weights_log_and_teacher(tmp_path):
     teacher = json.loads((out / "teacher.json").read_text())
     assert len(teacher) == 2 and all(t["status"] == "solved" and t["frames_per_s"] > 0 for t in teacher)
     assert cfg["data"]["teacher"] is True
+    train = cfg["run"]["train"]
+    assert (train["lr"], train["warmup"], train["lr_decay_steps"], train["lr_min_ratio"]) == (1e-5, 1, 10, 0.05)
+    # --init: two small steps from the bundled weights stay next to them (from scratch they would not)
+    from safetensors.torch import load_file
+
+    start, now = load_file(str(bundled / "model.safetensors")), load_file(str(out / "model.safetensors"))
+    assert start.keys() == now.keys()
+    assert max(float((now[k] - start[k]).abs().max()) for k in start) < 1e-3
 
 
 def test_unknown_option_is_refused(tmp_path):

@@ -64,6 +64,10 @@ def run_curve(cfg_name: str, args, out: Path, minutes: float) -> list[dict]:
         run = run.replace(train=dataclasses.replace(run.train, lr=args.lr))
     if args.lr_decay_steps:
         run = run.replace(train=dataclasses.replace(run.train, lr_decay_steps=args.lr_decay_steps))
+    if args.lr_min_ratio is not None:
+        run = run.replace(train=dataclasses.replace(run.train, lr_min_ratio=args.lr_min_ratio))
+    if args.warmup is not None:
+        run = run.replace(train=dataclasses.replace(run.train, warmup=args.warmup))
     if args.start_frac is not None:
         run = run.replace(train=dataclasses.replace(run.train, start_frac=args.start_frac))
     if args.feedback_frac is not None:
@@ -116,6 +120,8 @@ def main() -> int:
     ap.add_argument("--batch-size", type=int, help="override the preset's batch size")
     ap.add_argument("--lr", type=float, help="override the preset's peak learning rate (e.g. a lower one to continue from --init)")
     ap.add_argument("--lr-decay-steps", type=int, help="cosine learning-rate decay over this many steps after the warm-up")
+    ap.add_argument("--lr-min-ratio", type=float, help="where the cosine decay ends, as a share of --lr (TrainConfig.lr_min_ratio)")
+    ap.add_argument("--warmup", type=int, help="linear warm-up steps (TrainConfig.warmup)")
     ap.add_argument("--start-frac", type=float, help="share of every batch trained at the sampler's starting point (TrainConfig.start_frac)")
     ap.add_argument("--feedback-frac", type=float, help="share of every batch trained on the network's own estimates (TrainConfig.feedback_frac)")
     ap.add_argument("--feedback-sigma", type=float, help="noise level of the feedback evaluations (SamplerConfig.feedback_sigma)")

@@ -2,7 +2,12 @@
 # Train mer-base (or the paper configuration) on one accelerator in about 9 minutes; results in $OUT.
 #
 #   OUT=/path/to/out tools/train_device.sh [--config base|paper] [--minutes M] [--eval-input DIR] [--ref-group K]
-#   OUT=/tmp/x tools/train_device.sh --dry-run        # CPU, 2 training steps (tests/test_train_device.py)
+#       [--init DIR] [--batch-size B] [--lr LR] [--warmup N] [--lr-decay-steps N] [--lr-min-ratio R]
+#   OUT=/tmp/x tools/train_device.sh --dry-run [--init mer_models/bundled/mer-base]   # CPU, 2 training steps (tests/test_train_device.py)
+#
+# --init continues from a checkpoint's weights (fresh optimiser), e.g. the bundled mer-base, instead of
+# training from scratch; the rate options override the preset's (a continuation wants a lower --lr and a
+# decay over about the steps the minutes buy: docs/model.md, Results: mer-base).
 #
 # Steps (each on synthetic motion generated in code: the weights carry no LAFAN1 licence):
 #   1. shards: `mer shards build --synthetic` for the 8 built-in robots (sources and targets), 1 augmentation;
@@ -15,7 +20,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 : "${OUT:?set OUT to the output folder}"
-CONFIG=base MINUTES=5 EVAL_INPUT="" DRY=0 DEVICE=cuda CLIPS=8 STEPS_CHUNK=400 BATCH=() GROUP=()
+CONFIG=base MINUTES=5 EVAL_INPUT="" DRY=0 DEVICE=cuda CLIPS=8 STEPS_CHUNK=400 BATCH=() GROUP=() TRAIN=()
 while [ $# -gt 0 ]; do
   case "$1" in
     --config) CONFIG=$2; shift 2 ;;
@@ -23,6 +28,9 @@ while [ $# -gt 0 ]; do
     --eval-input) EVAL_INPUT=$2; shift 2 ;;
     --dry-run) DRY=1; shift ;;
     --ref-group) GROUP=(--ref-group "$2"); shift 2 ;;  # samples per window in a batch (TrainConfig.ref_group)
+    --init) TRAIN+=(--init "$2"); shift 2 ;;
+    --batch-size) BATCH=(--batch-size "$2"); shift 2 ;;
+    --lr|--warmup|--lr-decay-steps|--lr-min-ratio) TRAIN+=("$1" "$2"); shift 2 ;;
     *) echo "unknown option $1 (see the header of $0)" >&2; exit 2 ;;
   esac
 done
@@ -56,7 +64,7 @@ t1=$(date +%s)
 EVAL=()
 if [ -n "$EVAL_INPUT" ]; then EVAL=(--eval-input "$EVAL_INPUT" --eval-targets g1 h1 atlas --eval-windows 16); fi
 $PY tools/learning_curve.py --config "$CONFIG" --shards "$WORK/shards" --out "$WORK/run" --device "$DEVICE" "${BF16[@]}" \
-  --clock wall --max-minutes "$MINUTES" --chunk-steps "$STEPS_CHUNK" "${BATCH[@]}" "${GROUP[@]}" "${EVAL[@]}"
+  --clock wall --max-minutes "$MINUTES" --chunk-steps "$STEPS_CHUNK" "${BATCH[@]}" "${GROUP[@]}" "${TRAIN[@]}" "${EVAL[@]}"
 echo "train_device: training in $(( $(date +%s) - t1 )) s"
 cp "$WORK/run/config.json" "$WORK/run/model.safetensors" "$WORK/run/train_log.jsonl" "$WORK/run.learning_curve.jsonl" "$OUT/"
 if [ -n "$EVAL_INPUT" ]; then
