@@ -148,8 +148,10 @@ def finetune(
     run = ckpt.run
     over = {k: v for k, v in {"batch_size": batch_size, "lr": lr, "seed": seed, "log_every": log_every,
                                "save_every": save_every}.items() if v is not None}  # fmt: skip
-    if over:
-        run = run.replace(train=dataclasses.replace(run.train, **over))
+    # the fine-tune mixes the base's targets with the new robot sample by sample: no batches grouped by
+    # reference window (the base may have trained with them; a training-speed option, not the model's)
+    over["ref_group"] = 1
+    run = run.replace(train=dataclasses.replace(run.train, **over))
     if robot in ckpt.robots.get("targets", {}):
         log.warning("the base already has %r among its targets; training continues on it", robot)
     record["base_step"] = ckpt.step

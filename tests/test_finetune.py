@@ -87,6 +87,22 @@ def test_finetuning_starts_from_the_base_weights(tmp_path, robot):
         torch.testing.assert_close(tuned[k], base[k], atol=1e-9, rtol=0)
 
 
+def test_a_base_trained_with_grouped_batches_fine_tunes_ungrouped(tmp_path, robot):
+    """The fine-tune mixes targets sample by sample: a base's ``ref_group`` > 1 (a training-speed
+    option, recorded in its config) must not reach it."""
+    import shutil
+
+    from mer_models.finetune import finetune
+
+    base = tmp_path / "base"
+    shutil.copytree(bundled_dir() / zoo.DEFAULT_MODEL, base)
+    meta = json.loads((base / "config.json").read_text())
+    meta["run"]["train"]["ref_group"] = 4
+    (base / "config.json").write_text(json.dumps(meta))
+    res = finetune(str(base), robot, tmp_path / "ft", synthetic=4, steps=1, batch_size=2)
+    assert res.step == 1 and load_checkpoint(tmp_path / "ft").run.train.ref_group == 1
+
+
 def test_a_fraction_of_the_samples_targets_the_new_robot(robot):
     ds = SyntheticDataset("g1", ("g1", "h1"), size=64, frames=60)
     wt = WithNewTarget(ds, get_skeleton(robot), fraction=0.5, seed=0)

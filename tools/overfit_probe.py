@@ -55,15 +55,25 @@ def model_error(model_dir: str | Path, batch, keypoints) -> float:
 
 def where_the_error_sits(model_dir: str | Path, batch, keypoints) -> dict[str, float]:
     """The model's motion on ``batch`` against the teacher's: mean |angle difference| over actuated
-    joints [rad], mean base position difference [m], and the g-mpbpe [m] of the teacher's angles
-    under the model's base pose and of the model's angles on the teacher's base pose."""
+    joints [rad] (all, and split by where the teacher's angle sits: within 3 % of its range from a
+    limit or not, with the share near a limit), mean base position difference [m], and the g-mpbpe
+    [m] of the teacher's angles under the model's base pose and of the model's angles on the
+    teacher's base pose."""
     m, cond, ckpt, mine = _model_motion(model_dir, batch)
     with torch.no_grad():
         taught = m.decode(clean_samples(m, batch, cond, ckpt.run), cond)
-    dof = cond.tgt_graph.dof[:, None].to(mine["q"].dtype)
+    g = cond.tgt_graph
+    diff = (mine["q"] - taught["q"]).abs()
+    actuated = g.dof[:, None].expand_as(diff)
+    u = (taught["q"] - g.lower[:, None]) / (g.upper - g.lower).clamp_min(1e-9)[:, None]
+    near = actuated & (torch.minimum(u, 1 - u) < 0.03)
+    mid = actuated & ~near
     base = {"base_pos": mine["base_pos"], "base_rot": mine["base_rot"]}
     return {
-        "angle_rad": float(((mine["q"] - taught["q"]).abs() * dof).sum() / (dof.sum() * mine["q"].shape[1])),
+        "angle_rad": float(diff[actuated].mean()),
+        "angle_rad_near_limit": float(diff[near].mean()) if near.any() else float("nan"),
+        "angle_rad_mid_range": float(diff[mid].mean()),
+        "near_limit_share": float(near.sum() / actuated.sum()),
         "base_m": float((mine["base_pos"] - taught["base_pos"]).norm(dim=-1).mean()),
         "teacher_angles_model_base": g_mpbpe({"q": taught["q"], **base}, batch, keypoints),
         "model_angles_teacher_base": g_mpbpe({"q": mine["q"], "base_pos": taught["base_pos"],
