@@ -54,7 +54,8 @@ def model_error(model_dir: str | Path, batch, keypoints) -> float:
 
 
 def where_the_error_sits(model_dir: str | Path, batch, keypoints) -> dict[str, float]:
-    """The model's motion on ``batch`` against the teacher's: mean |angle difference| over actuated
+    """The model's g-mpbpe on ``batch`` [m] (``fit``, as :func:`model_error`) and its motion against the
+    teacher's: mean |angle difference| over actuated
     joints [rad] (all, and split by where the teacher's angle sits: within 3 % of its range from a
     limit or not, with the share near a limit), mean base position difference [m], and the g-mpbpe
     [m] of the teacher's angles under the model's base pose and of the model's angles on the
@@ -70,6 +71,7 @@ def where_the_error_sits(model_dir: str | Path, batch, keypoints) -> dict[str, f
     mid = actuated & ~near
     base = {"base_pos": mine["base_pos"], "base_rot": mine["base_rot"]}
     return {
+        "fit": g_mpbpe(mine, batch, keypoints),
         "angle_rad": float(diff[actuated].mean()),
         "angle_rad_near_limit": float(diff[near].mean()) if near.any() else float("nan"),
         "angle_rad_mid_range": float(diff[mid].mean()),
@@ -140,9 +142,8 @@ def main() -> None:
     log_path = out.parent / f"{out.name}.probe.jsonl"
     first = {"step": 0, "teacher": teacher, "samples": args.samples, "pair": f"{args.source}->{args.target}"}
     if args.init:
-        first.update(fit=model_error(args.init, fit_batch, kp), held=model_error(args.init, held_batch, kp))
-        if args.diagnose:
-            first.update(where_the_error_sits(args.init, fit_batch, kp))
+        fit = where_the_error_sits(args.init, fit_batch, kp) if args.diagnose else {"fit": model_error(args.init, fit_batch, kp)}
+        first.update(fit, held=model_error(args.init, held_batch, kp))
     print(json.dumps(first), flush=True)
     with open(log_path, "a") as fh:
         fh.write(json.dumps(first) + "\n")
@@ -150,10 +151,9 @@ def main() -> None:
         t0 = time.process_time()
         init = Path(args.init) / "model.safetensors" if args.init and step == args.chunk else None
         train(run, Subset(ds, fit_idx), out, steps=step, resume=step > args.chunk, init=init)
-        row = {"step": step, "fit": model_error(out, fit_batch, kp), "held": model_error(out, held_batch, kp),
+        fit = where_the_error_sits(out, fit_batch, kp) if args.diagnose else {"fit": model_error(out, fit_batch, kp)}
+        row = {"step": step, **fit, "held": model_error(out, held_batch, kp),
                "teacher": teacher, "cpu_min": round((time.process_time() - t0) / 60, 2)}  # fmt: skip
-        if args.diagnose:
-            row.update(where_the_error_sits(out, fit_batch, kp))
         print(json.dumps(row), flush=True)
         with open(log_path, "a") as fh:
             fh.write(json.dumps(row) + "\n")
