@@ -265,7 +265,7 @@ def retarget_dataset(
                                              fps=MODEL_FPS, **model_kw)  # fmt: skip
             seconds = (time.perf_counter() - t0) / len(cjobs)  # the pass is shared: each pair gets its share
             for j, res in zip(cjobs, results):
-                _write(j, res.motion, world, src, formats, method, seconds, prepare_reference(world, src, tgts[j.target]), npz_fps)
+                _write(j, res.motion, world, src, formats, method, seconds, res.prepared, npz_fps)
                 frames_done += res.motion.num_frames
                 pairs_done += 1
                 if progress is not None:

@@ -67,6 +67,8 @@ class RetargetResult:
         outputs: kind → path of every file written.
         reference_nodes: (F, Jr, 3) every node of the reference scaled to the target (world frame) [m].
         reference_skeleton: the reference (source) skeleton of ``reference_nodes``.
+        prepared: what :func:`~mer_models.long_horizon.prepare_reference` made of the reference for
+            this target (features, scaled nodes, shift, rotation goals), for metrics without preparing again.
     """
 
     motion: TargetMotion
@@ -75,6 +77,7 @@ class RetargetResult:
     outputs: dict[str, Path] = field(default_factory=dict)
     reference_nodes: np.ndarray | None = None
     reference_skeleton: Skeleton | None = None
+    prepared: tuple | None = None
 
 
 def source_features(base_pos: np.ndarray, base_quat: np.ndarray, q: np.ndarray, skel: Skeleton, fps: float) -> np.ndarray:
@@ -210,10 +213,11 @@ def retarget_features_many(
             out["base_pos"] = out["base_pos"] + shift
             outs.append(out)
     results = []
-    for t, eta, (_, scaled, shift, _), out, label in zip(tgts, etas, prepared, outs, labels):
+    for t, eta, prep, out, label in zip(tgts, etas, prepared, outs, labels):
+        _, scaled, shift, _ = prep
         motion = TargetMotion(t, fps, out["q"], out["base_pos"], out["base_rot"])
         results.append(RetargetResult(motion, _reference_points(scaled, shift, eta), label, reference_nodes=scaled + shift,
-                                      reference_skeleton=ref))  # fmt: skip
+                                      reference_skeleton=ref, prepared=prep))  # fmt: skip
     return results
 
 
