@@ -229,7 +229,7 @@ def retarget_dataset(
         method: ``optimize`` (batched across clips) or ``diffusion`` (``checkpoint`` required).
         formats: any of :data:`FORMATS`; the metrics file is always written; npz_fps: npz frame rate [Hz].
         progress: called with (pairs done, pairs to do) of this run's work.
-        model_kw: sampler options for ``diffusion`` (``steps``, ``guidance``, ``seed``, ``allow_unseen``).
+        model_kw: sampler options for ``diffusion`` (``steps``, ``guidance``, ``seed``, ``allow_unseen``, ``bf16``).
 
     Returns:
         ``{"jobs", "done_before", "done_now", "frames", "seconds", "frames_per_second", "rows"}``;

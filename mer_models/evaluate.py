@@ -56,6 +56,7 @@ class EvalOptions:
         opt_iters, opt_gn_iters: the optimiser's Adam and (most) Levenberg-Marquardt iterations.
         scaling: how the reference is scaled to the target (:mod:`mer_data.scaling`).
         refine: Levenberg-Marquardt iterations of the ``refine`` method.
+        bf16: the model's network under bfloat16 autocast (:mod:`mer_models.precision`).
     """
 
     split: str = "paper"
@@ -72,6 +73,7 @@ class EvalOptions:
     opt_gn_iters: int = DEFAULT_GN_ITERS
     scaling: str = "segments"
     refine: int = 5
+    bf16: bool = False
 
 
 def _clip_files(folder: Path) -> dict[str, Path]:
@@ -210,7 +212,8 @@ def evaluate(
                         over = {k: float(v) for k, v in {"guidance": opts.guidance, "init_noise": opts.init_noise}.items() if v is not None}
                         sampler = SamplerConfig(**{**run.sampler.__dict__, **over})
                         gen = torch.Generator().manual_seed(opts.seed + a)
-                        motion = sample_batch(checkpoint.model, batch, sampler, energy=model_energy, steps=opts.steps, generator=gen)
+                        motion = sample_batch(checkpoint.model, batch, sampler, energy=model_energy, steps=opts.steps, generator=gen,
+                                              bf16=opts.bf16)  # fmt: skip
                         if method == "refine":
                             motion = optimize_batch(opt_energy, batch, gn_iters=opts.refine, init=motion)
                     else:

@@ -7,6 +7,7 @@ windows: the window's own frame).
 
 from __future__ import annotations
 
+import functools
 from typing import Callable, Mapping
 
 import torch
@@ -18,6 +19,7 @@ from .kinematics import graph_from_batch
 from .model import Conditions, RetargetModel
 from .ik import DEFAULT_SMOOTH
 from .optimize import DEFAULT_GN_ITERS, DEFAULT_ITERS, optimize_motion
+from .precision import network_autocast
 from .sampling import (
     CountingDenoiser,
     EnergyGuidance,
@@ -52,11 +54,14 @@ def sample_conditions(
     generator: torch.Generator | None = None,
     denoiser_wrapper: Callable | None = None,
     stats: dict | None = None,
+    bf16: bool = False,
 ) -> torch.Tensor:
     """Sample ``D`` (B, T, Jt, 9) in the diffusion space for prepared conditions.
 
     ``method``/``steps`` override ``sampler.method``/``sampler.steps``; ``denoiser_wrapper(denoiser) -> denoiser`` can add
-    in-painting; ``stats`` receives ``nfe`` (network evaluations).
+    in-painting; ``stats`` receives ``nfe`` (network evaluations). ``bf16``: the network (reference
+    encoder and denoiser) under bfloat16 autocast (:mod:`mer_models.precision`); the sampler's
+    arithmetic, the guidance and the returned ``D`` stay float32.
     """
     method = method or sampler.method
     if method not in SAMPLERS:
@@ -66,7 +71,13 @@ def sample_conditions(
         sigmas = feedback_sigmas(steps or sampler.steps, sampler.sigma_max, sampler.feedback_sigma, device=dev)
     else:
         sigmas = karras_sigmas(steps or sampler.steps, sampler.sigma_min, sampler.sigma_max, sampler.rho, device=dev)
-    den = CountingDenoiser(model.denoise)
+    autocast = functools.partial(network_autocast, dev, bf16)
+
+    def denoise(x, sigma, c):
+        with autocast():
+            return model.denoise(x, sigma, c).float()
+
+    den = CountingDenoiser(denoise if bf16 else model.denoise)
     fn = denoiser_wrapper(den) if denoiser_wrapper is not None else den
     guidance = None
     if sampler.guidance > 0:
@@ -78,7 +89,8 @@ def sample_conditions(
         x = x + model.goal_prior(cond)
     kw = {"generator": generator} if method == "ancestral" else {"project": model.project} if method == "feedback" else {}
     with torch.no_grad():
-        model.encode(cond)
+        with autocast():
+            model.encode(cond)
         out = SAMPLERS[method](fn, x, sigmas, cond, guidance=guidance, **kw)
     if stats is not None:
         stats["nfe"] = den.calls

@@ -28,6 +28,7 @@ from mer_data.skeleton import Skeleton
 
 from .config import EnergyConfig, SamplerConfig
 from .inference import sample_conditions
+from .precision import network_autocast
 from .kinematics import batch_features
 from .model import RetargetModel
 from .representation import normalize, transform_features
@@ -108,6 +109,7 @@ def retarget_sequences(
     etas: Sequence[np.ndarray] | None = None,
     prepared: Sequence[tuple] | None = None,
     progress: Callable[[int, int], None] | None = None,
+    bf16: bool = False,
 ) -> list[dict[str, np.ndarray]]:
     """Retarget a whole motion with the model to several targets at once.
 
@@ -126,6 +128,7 @@ def retarget_sequences(
         sampler: steps, noise schedule, guidance and ``overlap``.
         inpaint: False concatenates independently sampled clips (for comparison only).
         progress: called with (windows done, windows) of the motion.
+        bf16: the network under bfloat16 autocast (fast on AMX CPUs and accelerators, :mod:`mer_models.precision`).
 
     Returns:
         Per target: ``q`` (N, Jt) [rad], ``base_pos`` (N, 3) [m], ``base_rot`` (N, 3, 3), world frame, float64.
@@ -169,7 +172,7 @@ def retarget_sequences(
             batch = _window_batch(feats[s : s + frames], scaled[i][s : s + frames], ref, t, etas[i])
             cond = model.conditions(batch, fps)
             if tokens is None:
-                with torch.no_grad():
+                with torch.no_grad(), network_autocast(dev, bf16):
                     tokens = model.encode(cond)
             cond.ref_tokens = tokens
             wrapper = None
@@ -192,7 +195,7 @@ def retarget_sequences(
                     return inpainted
 
             d = sample_conditions(model, cond, sampler, energy=energy, method=method, steps=steps, generator=gens[i],
-                                  denoiser_wrapper=wrapper)  # fmt: skip
+                                  denoiser_wrapper=wrapper, bf16=bf16)  # fmt: skip
             out = model.decode(d, cond)
             q[i][lo : s + frames] = out["q"][0, lo - s :].double().cpu().numpy()
             base_pos[i][lo : s + frames] = out["base_pos"][0, lo - s :].double().cpu().numpy()

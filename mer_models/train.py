@@ -46,6 +46,7 @@ from .edm import denoising_loss, sample_sigma
 from .kinematics import batch_features
 from .model import Conditions, RetargetModel
 from .optimize import optimize_motion
+from .precision import native_bf16
 from .representation import normalize, transform_features
 
 log = logging.getLogger(__name__)
@@ -238,22 +239,6 @@ def _at_feedback(
     x_in = torch.cat([x_in[:k], fed, x_in[k + kf :]])
     sigma = torch.cat([sigma[:k], torch.full_like(sigma[sel], float(run.sampler.feedback_sigma)), sigma[k + kf :]])
     return x_in, sigma
-
-
-def native_bf16(device: str | torch.device = "cpu") -> bool:
-    """Whether bfloat16 autocast runs natively on ``device``: always on accelerators; on the CPU only
-    with AMX or AVX512-BF16 (oneDNN's check). Elsewhere PyTorch emulates it, several times slower
-    than float32 (measured on an AVX2 machine: a ``base`` step 43 s in bf16, docs/model.md)."""
-    if torch.device(device).type != "cpu":
-        return True
-    try:
-        return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
-    except (AttributeError, RuntimeError):  # a PyTorch without the check: the CPU's flags, where Linux lists them
-        try:
-            flags = Path("/proc/cpuinfo").read_text()
-        except OSError:
-            return True  # cannot tell: no warning
-        return "amx_bf16" in flags or "avx512_bf16" in flags
 
 
 def _dist() -> tuple[int, int]:

@@ -26,6 +26,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-windows", type=int, help="at most N windows per domain, spread over the clips")
     p.add_argument("--steps", type=int, help="sampler steps (default: the model's)")
     p.add_argument("--guidance", type=float, help="test-time energy guidance step (default: the model's)")
+    p.add_argument("--bf16", action="store_true", help="the model's network in bfloat16 (model and refine methods; fast on CPUs "
+                   "with AMX or AVX512-BF16 and on GPUs, emulated and slower elsewhere)")
     p.add_argument("--init-noise", type=float, help="scale of the sampler's initial noise, 0-1 (0: deterministic; default: the model's)")
     p.add_argument("--batch-size", type=int, default=16)
     p.add_argument("--opt-iters", type=int, default=None, help="Adam iterations of the optimiser's second stage (default 0: off)")
@@ -47,7 +49,7 @@ def cmd_evaluate(args) -> int:
     ckpt = resolve_model(args.model, args.device) if args.model else None
     methods = tuple(args.methods or (("model", "optimize") if ckpt is not None else ("optimize",)))
     opts = EvalOptions(split=args.split, stride=args.stride, max_windows=args.max_windows, methods=methods,
-                       steps=args.steps, guidance=args.guidance, init_noise=args.init_noise, batch_size=args.batch_size, seed=args.seed, scaling=args.scaling, refine=args.refine,
+                       steps=args.steps, guidance=args.guidance, init_noise=args.init_noise, batch_size=args.batch_size, seed=args.seed, scaling=args.scaling, refine=args.refine, bf16=args.bf16,
                        **{k: v for k, v in {"opt_iters": args.opt_iters, "opt_gn_iters": args.opt_gn_iters}.items() if v is not None})  # fmt: skip
     report = evaluate(args.input, args.source, args.targets, checkpoint=ckpt, opts=opts,
                       progress=lambda s: print(s, file=sys.stderr))  # fmt: skip
