@@ -1,7 +1,7 @@
 """Where bfloat16 runs natively, and the autocast the network uses there.
 
 bf16 autocast halves the network's time on CPUs with AMX (measured on a 2-core Xeon: one `mer-base`
-evaluation of 16 windows 1.6-2.2 s in float32, 0.8-1.2 s in bf16, g-mpbpe equal to 0.1 mm;
+evaluation of 16 windows 1.6-2.2 s in float32, 0.8-1.2 s in bf16, g-mpbpe within 0.2 mm;
 docs/model.md) and on accelerators; without AMX or AVX512-BF16 PyTorch emulates it, several times
 slower than float32, so callers warn there (:func:`native_bf16`).
 """
