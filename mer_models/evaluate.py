@@ -179,6 +179,9 @@ def evaluate(
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         raise MerError(f"unknown method(s) {unknown}; known: {', '.join(METHODS)}")
+    if opts.bf16 and not ("model" in methods or "refine" in methods):
+        raise MerError("--bf16 runs the model's network in bfloat16; the optimiser has no network",
+                       fix="drop --bf16, or add --methods model (or refine)")  # fmt: skip
     if "model" in methods or "refine" in methods:
         if checkpoint is None:
             raise MerError("evaluating the model needs --model", fix="pass --model PATH, or --methods optimize")

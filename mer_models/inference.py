@@ -7,7 +7,6 @@ windows: the window's own frame).
 
 from __future__ import annotations
 
-import functools
 from typing import Callable, Mapping
 
 import torch
@@ -71,13 +70,11 @@ def sample_conditions(
         sigmas = feedback_sigmas(steps or sampler.steps, sampler.sigma_max, sampler.feedback_sigma, device=dev)
     else:
         sigmas = karras_sigmas(steps or sampler.steps, sampler.sigma_min, sampler.sigma_max, sampler.rho, device=dev)
-    autocast = functools.partial(network_autocast, dev, bf16)
-
     def denoise(x, sigma, c):
-        with autocast():
-            return model.denoise(x, sigma, c).float()
+        with network_autocast(dev, bf16):
+            return model.denoise(x, sigma, c).float()  # float32 already unless bf16: no copy
 
-    den = CountingDenoiser(denoise if bf16 else model.denoise)
+    den = CountingDenoiser(denoise)
     fn = denoiser_wrapper(den) if denoiser_wrapper is not None else den
     guidance = None
     if sampler.guidance > 0:
@@ -89,7 +86,7 @@ def sample_conditions(
         x = x + model.goal_prior(cond)
     kw = {"generator": generator} if method == "ancestral" else {"project": model.project} if method == "feedback" else {}
     with torch.no_grad():
-        with autocast():
+        with network_autocast(dev, bf16):
             model.encode(cond)
         out = SAMPLERS[method](fn, x, sigmas, cond, guidance=guidance, **kw)
     if stats is not None:

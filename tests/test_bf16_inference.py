@@ -54,7 +54,15 @@ def test_retarget_and_evaluate_take_bf16(tmp_path, capsys):
 
     data = tmp_path / "data"
     synthetic_csv(data / "g1" / "clip0.csv", "g1", frames=120, seed=0)
-    assert main(["evaluate", "--model", "mer-base", "--input", str(data), "--source", "g1", "--targets", "h1", "--split", "all",
-                 "--max-windows", "2", "--methods", "model", "--bf16", "--save", str(tmp_path / "r.json")]) == 0  # fmt: skip
-    rep = json.loads((tmp_path / "r.json").read_text())
-    assert rep["options"]["bf16"] is True and rep["rows"][0]["metrics"]["g_mpbpe"]["mean"] < 0.5
+    ev = ["evaluate", "--model", "mer-base", "--input", str(data), "--source", "g1", "--targets", "h1", "--split", "all",
+          "--max-windows", "2"]  # fmt: skip
+    reps = {}
+    for flag in ([], ["--bf16"]):
+        assert main(ev + ["--methods", "model", *flag, "--save", str(tmp_path / "r.json")]) == 0
+        reps[bool(flag)] = json.loads((tmp_path / "r.json").read_text())
+    assert reps[True]["options"]["bf16"] is True and reps[False]["options"]["bf16"] is False
+    g = {k: r["rows"][0]["metrics"]["g_mpbpe"]["mean"] for k, r in reps.items()}
+    assert g[True] != g[False] and abs(g[True] - g[False]) < 0.003, g  # bf16 ran, and kept the accuracy
+    capsys.readouterr()
+    assert main(ev + ["--methods", "optimize", "--bf16"]) == 1  # nothing for bf16 to run
+    assert "--bf16 runs the model's network" in capsys.readouterr().err
