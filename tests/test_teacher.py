@@ -158,3 +158,18 @@ def test_teacher_samples_load_in_dataloader_workers(solved):
 def test_hub_shards_need_an_out_folder():
     with pytest.raises(MerError, match="--out"):
         solve_shards("hf://datasets/someone/shards")
+
+
+def test_threads_option_sets_the_jobs_threads_and_refuses_zero(solved, tmp_path, capsys):
+    """``--threads N``: the solve runs on N threads (parallel jobs on one machine share its cores)."""
+    before = torch.get_num_threads()
+    out = tmp_path / "s"
+    shutil.copytree(solved, out)
+    try:
+        assert main(["shards", "solve", str(out), "--gn-iters", str(GN), "--batch", "3", "--quiet", "--threads", "1"]) == 0
+        assert torch.get_num_threads() == 1
+        assert "up to date" in capsys.readouterr().out
+        assert main(["shards", "solve", str(out), "--threads", "0"]) == 1
+        assert "--threads must be >= 1" in capsys.readouterr().err
+    finally:
+        torch.set_num_threads(before)

@@ -25,6 +25,9 @@ def add_parser(ss: argparse._SubParsersAction) -> None:
     p.add_argument("--shard-index", type=int, default=None, metavar="I", help="solve only shard files i with i %% N == I")
     p.add_argument("--num-shards", type=int, default=1, metavar="N", help="number of parallel jobs (default 1)")
     p.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
+    p.add_argument("--threads", type=int, default=None, metavar="N",
+                   help="CPU threads of this job (default: PyTorch's, one per core); give N jobs on one machine "
+                        "cores/N each (two jobs of 2 threads on 2 cores run several times slower than of 1; docs/shards.md)")
     p.add_argument("--force", action="store_true", help="solve again where a teacher file of another configuration exists")
     p.add_argument("--json", action="store_true", help="print the per-shard records as JSON")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -36,6 +39,12 @@ def cmd_solve(args) -> int:
 
     if args.batch < 1:
         raise MerError("--batch must be >= 1")
+    if args.threads is not None:
+        if args.threads < 1:
+            raise MerError(f"--threads must be >= 1, got {args.threads}", fix="--threads 1 for one job per core")
+        import torch
+
+        torch.set_num_threads(args.threads)
     kw = {"scaling": args.scaling, "batch": args.batch}
     if args.gn_iters is not None:
         if args.gn_iters < 1:
