@@ -38,6 +38,7 @@ import math
 
 import torch
 
+from mer_data.errors import MerError
 from mer_data.rotations import axis_angle_to_matrix, matrix_to_quat, quat_slerp, quat_to_matrix
 
 from .config import EnergyConfig
@@ -48,7 +49,14 @@ from .kinematics import BatchGraph
 
 log = logging.getLogger(__name__)
 
-__all__ = ["optimize_motion", "free_iterations", "DEFAULT_ITERS", "DEFAULT_GN_ITERS", "WARM_FREE_ITERS"]
+__all__ = [
+    "optimize_motion",
+    "free_iterations",
+    "check_free_iterations",
+    "DEFAULT_ITERS",
+    "DEFAULT_GN_ITERS",
+    "WARM_FREE_ITERS",
+]
 
 #: Adam iterations of stage 2 (0: off; see the module docstring).
 DEFAULT_ITERS = 0
@@ -67,6 +75,23 @@ def free_iterations(gn_iters: int) -> int:
     """Of ``gn_iters`` warm-started iterations, how many run without the temporal prior first:
     ``WARM_FREE_ITERS``, never more than half (1 → 0, 2 or 3 → 1, 4 and more → 2)."""
     return min(WARM_FREE_ITERS, max(gn_iters, 0) // 2)
+
+
+def check_free_iterations(free_iters: int | None, gn_iters: int, *, flags: tuple[str, str] = ("free_iters", "gn_iters")) -> int:
+    """The number of prior-free warm-start iterations to run: :func:`free_iterations` when
+    ``free_iters`` is None, else ``free_iters`` itself, refused unless ``0 <= free_iters <= gn_iters``.
+
+    ``flags`` names the two values in the error (``("--refine-free", "--refine")`` on the command line).
+    """
+    if free_iters is None:
+        return free_iterations(gn_iters)
+    if not 0 <= free_iters <= gn_iters:
+        name, bound = flags
+        raise MerError(
+            f"{name} must be between 0 and {bound} ({gn_iters}), got {free_iters}",
+            fix=f"give {name} N with 0 <= N <= {bound}",
+        )
+    return free_iters
 
 
 def _interpolate(coarse: dict[str, torch.Tensor], idx: torch.Tensor, T: int) -> dict[str, torch.Tensor]:
@@ -122,7 +147,8 @@ def optimize_motion(
         lr: step of the angle logits [1] and base rotation [rad]; the base position uses lr/5 [m].
         init: optional warm start ``{"q", "base_pos", "base_rot"}`` (e.g. a model's output).
         free_iters: with ``init``, how many of the ``gn_iters`` iterations run first without the
-            temporal prior (default :func:`free_iterations`; 0: all with it). Ignored without ``init``.
+            temporal prior (default :func:`free_iterations`; 0: all with it; outside 0..gn_iters:
+            :class:`~mer_data.errors.MerError`). Ignored without ``init``.
         stats: receives ``gn_iterations``.
 
     Returns:
@@ -153,20 +179,20 @@ def optimize_motion(
                 warm = _interpolate({"q": qk, "base_pos": pk, "base_rot": rk}, idx, T)
                 q0, p0, r0 = warm["q"], warm["base_pos"], warm["base_rot"]
                 ik_iters = min(gn_iters, refine_iters)
-            free = 0
+            planned_free = free_run = 0
             if init is not None and smooth > 0:
-                free = free_iterations(gn_iters) if free_iters is None else min(max(free_iters, 0), gn_iters)
-            if free:  # the warm start is smooth: frame by frame first, then the prior takes the jitter out
+                planned_free = check_free_iterations(free_iters, gn_iters)
+            if planned_free:  # the warm start is smooth: frame by frame first, then the prior takes the jitter out
                 free_stats: dict = {}
-                q0, p0, r0 = gauss_newton_ik(cfg, graph, eta, goal, q0, p0, r0, iters=free, smooth=0.0, tol=tol,
+                q0, p0, r0 = gauss_newton_ik(cfg, graph, eta, goal, q0, p0, r0, iters=planned_free, smooth=0.0, tol=tol,
                                              stats=free_stats, **gkw)  # fmt: skip
-                ik_iters -= free
-                free = free_stats["iterations"]
+                ik_iters -= planned_free
+                free_run = free_stats["iterations"]
             if ik_iters > 0:
                 q0, p0, r0 = gauss_newton_ik(cfg, graph, eta, goal, q0, p0, r0, iters=ik_iters, smooth=smooth, tol=tol,
                                              stats=ik_stats, **gkw)  # fmt: skip
             if stats is not None:
-                stats["gn_iterations"] = free + ik_stats.get("iterations", 0)
+                stats["gn_iterations"] = free_run + ik_stats.get("iterations", 0)
     if iters > 0:
         z = _logit_of(q0, lower, upper).clone().requires_grad_(True)
         pos = p0.clone().requires_grad_(True)

@@ -5,6 +5,9 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
+
+from mer_data.errors import MerError
 
 from mer_models.cli import main
 
@@ -89,6 +92,9 @@ def test_a_warm_start_runs_its_first_iterations_without_the_temporal_prior():
     assert (m2["g_mpbpe"] < 0.9 * m0["g_mpbpe"]).all(), (m2["g_mpbpe"], m0["g_mpbpe"])
     assert (m2["jerk_frame"] < 1.5 * mb["jerk_frame"] + 1e-3).all(), (m2["jerk_frame"], mb["jerk_frame"])
     assert (m2["limit_violation"] == 0).all()
+    for bad in (-1, 6):  # the library refuses what it cannot run, as the command line does
+        with pytest.raises(MerError, match=f"free_iters must be between 0 and gn_iters \\(5\\), got {bad}"):
+            optimize_motion(*args, **kw, gn_iters=5, init=warm, free_iters=bad)
 
 
 def test_refine_free_is_checked_and_recorded(tmp_path, capsys, micro_checkpoint):  # noqa: F811

@@ -6,6 +6,8 @@ import argparse
 import json
 import sys
 
+from .retarget import add_refine_free_option, check_refine_free
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -22,7 +24,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--methods", nargs="+", default=None, choices=["model", "refine", "optimize"],
                    help="default: model and optimize (optimize only without --model); refine: the model, then --refine K optimiser iterations")
     p.add_argument("--refine", type=int, default=5, metavar="K", help="optimiser iterations of the refine method (default 5)")
-    p.add_argument("--refine-free", type=int, default=None, metavar="N", help="of the --refine iterations, how many run first without the optimiser's temporal prior, frame by frame (default: 2, at most half; 0: all with it, smoother but farther from the goals; docs/model.md)")
+    add_refine_free_option(p)
     p.add_argument("--stride", type=int, default=60, help="window stride [frames] (default 60)")
     p.add_argument("--max-windows", type=int, help="at most N windows per domain, spread over the clips")
     p.add_argument("--steps", type=int, help="sampler steps (default: the model's)")
@@ -47,11 +49,7 @@ def cmd_evaluate(args) -> int:
     from mer_models.evaluate import EvalOptions, evaluate, format_table
     from mer_data.atomic import atomic_write
 
-    if args.refine_free is not None and not 0 <= args.refine_free <= args.refine:
-        from mer_data.errors import MerError
-
-        raise MerError(f"--refine-free must be between 0 and --refine ({args.refine}), got {args.refine_free}",
-                       fix="give --refine-free N with 0 <= N <= --refine K")
+    check_refine_free(args)
     ckpt = resolve_model(args.model, args.device) if args.model else None
     methods = tuple(args.methods or (("model", "optimize") if ckpt is not None else ("optimize",)))
     opts = EvalOptions(split=args.split, stride=args.stride, max_windows=args.max_windows, methods=methods,

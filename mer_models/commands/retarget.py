@@ -6,6 +6,20 @@ import argparse
 import sys
 
 
+def add_refine_free_option(p: argparse.ArgumentParser) -> None:
+    """``--refine-free N`` (``mer retarget`` and ``mer evaluate``): see :func:`mer_models.optimize.free_iterations`."""
+    p.add_argument("--refine-free", type=int, default=None, metavar="N",
+                   help="of the --refine iterations, how many run first without the optimiser's temporal prior, frame by frame "
+                        "(default: 2, at most half; 0: all with it, smoother but farther from the goals; docs/model.md)")  # fmt: skip
+
+
+def check_refine_free(args: argparse.Namespace) -> None:
+    """Refuse ``--refine-free N`` outside ``0..--refine`` before any work starts."""
+    from mer_models.optimize import check_free_iterations
+
+    check_free_iterations(args.refine_free, args.refine, flags=("--refine-free", "--refine"))
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "retarget",
@@ -48,7 +62,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="sampling seed")
     p.add_argument("--refine", type=int, default=0, metavar="K", help="diffusion: then at most K optimiser iterations from the "
                    "model's output (fast and exact; default 0: the model alone)")
-    p.add_argument("--refine-free", type=int, default=None, metavar="N", help="of the --refine iterations, how many run first without the optimiser's temporal prior, frame by frame (default: 2, at most half; 0: all with it, smoother but farther from the goals; docs/model.md)")
+    add_refine_free_option(p)
     p.add_argument("--bf16", action="store_true", help="diffusion: the network in bfloat16 (about twice as fast on CPUs with AMX "
                    "or AVX512-BF16 and on GPUs, within 0.5 mm of float32 on LAFAN1; emulated and slower elsewhere: a warning says so)")
     p.add_argument("--fps", type=float, default=30.0, help="frame rate of the input (resampled to 30 Hz)")
@@ -70,9 +84,7 @@ def cmd_retarget(args) -> int:
         raise MerError("nothing to write", fix="give -o OUT.csv and/or --npz/--mcap/--plot/--video")
     if args.refine < 0:
         raise MerError(f"--refine must be >= 0, got {args.refine}")
-    if args.refine_free is not None and not 0 <= args.refine_free <= args.refine:
-        raise MerError(f"--refine-free must be between 0 and --refine ({args.refine}), got {args.refine_free}",
-                       fix="give --refine K and --refine-free N with 0 <= N <= K")
+    check_refine_free(args)
     kw = {"steps": args.steps, "guidance": args.guidance, "seed": args.seed, "allow_unseen": args.allow_unseen, "refine": args.refine,
           "refine_free": args.refine_free, "bf16": args.bf16}  # fmt: skip
     if args.method == "optimize":
