@@ -56,8 +56,6 @@ class EvalOptions:
         opt_iters, opt_gn_iters: the optimiser's Adam and (most) Levenberg-Marquardt iterations.
         scaling: how the reference is scaled to the target (:mod:`mer_data.scaling`).
         refine: Levenberg-Marquardt iterations of the ``refine`` method.
-        refine_free: how many of them run first without the temporal prior (None: up to 2, at most
-            half, :func:`mer_models.optimize.free_iterations`; 0: all with it).
         bf16: the model's network under bfloat16 autocast (:mod:`mer_models.precision`).
     """
 
@@ -75,7 +73,6 @@ class EvalOptions:
     opt_gn_iters: int = DEFAULT_GN_ITERS
     scaling: str = "segments"
     refine: int = 5
-    refine_free: int | None = None
     bf16: bool = False
 
 
@@ -221,8 +218,7 @@ def evaluate(
                         motion = sample_batch(checkpoint.model, batch, sampler, energy=model_energy, steps=opts.steps, generator=gen,
                                               bf16=opts.bf16)  # fmt: skip
                         if method == "refine":
-                            motion = optimize_batch(opt_energy, batch, gn_iters=opts.refine, init=motion,
-                                                    free_iters=opts.refine_free)  # fmt: skip
+                            motion = optimize_batch(opt_energy, batch, gn_iters=opts.refine, init=motion)
                     else:
                         motion = optimize_batch(opt_energy, batch, iters=opts.opt_iters, gn_iters=opts.opt_gn_iters)
                     for k, v in window_metrics(motion, batch, keypoints={"base": 0, **tgt.keypoints}, joints=_joints(tgt)).items():

@@ -110,13 +110,12 @@ def optimize_batch(
     device: str | torch.device = "cpu",
     init: Mapping[str, torch.Tensor] | None = None,
     smooth: float = DEFAULT_SMOOTH,
-    free_iters: int | None = None,
 ) -> dict[str, torch.Tensor]:
     """The optimiser on a collated batch, in the batch's frame (no model needed).
 
     ``init`` warm-starts it (``q``, ``base_pos``, ``base_rot``: e.g. a model's output to refine);
-    ``smooth``: the weight of its temporal prior; ``free_iters``: with ``init``, how many iterations
-    run first without it (default :func:`mer_models.optimize.free_iterations`).
+    (``gn_iters`` iterations on whole windows, :func:`mer_models.ik.coupled_lm_ik`); ``smooth``:
+    the weight of its temporal prior.
     """
     g = graph_from_batch(batch, "tgt", device)
     goal = batch["ref_scaled_pos"].to(device, torch.float32)
@@ -125,6 +124,6 @@ def optimize_batch(
     if "ref_goal_rot" in batch:
         rkw = {"goal_rot": batch["ref_goal_rot"].to(device, torch.float32), "rot_mask": batch["ref_rot_mask"].to(device)}
     out = optimize_motion(energy, g, batch["joint_map"].to(device, torch.float32), goal, ref_rot, iters=iters, gn_iters=gn_iters,
-                          init=init, smooth=smooth, free_iters=free_iters, **rkw)  # fmt: skip
+                          init=init, smooth=smooth, **rkw)  # fmt: skip
     return {"q": out["q"], "base_pos": out["base_pos"], "base_rot": out["base_rot"], "energy": out["energy"]}
 

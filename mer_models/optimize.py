@@ -16,11 +16,13 @@ reference's base orientation; then every frame from the interpolation of those k
 is close enough that a few iterations finish it (and neighbouring frames start in the same basin).
 
 A warm start (``init``: a model's output, ``--refine K``) is already smooth and near the goals;
-there the temporal prior mostly holds frames back (Jacobi-style, it pulls each frame towards its
-neighbours' previous iterate), so the first :func:`free_iterations` of the K run without it,
-frame by frame, and the rest with it, which takes the jitter those first steps let in back out
-(docs/model.md §The optimiser as a refinement: on LAFAN1, 5 iterations from `mer-base`'s output
-went from 1.04-1.84x the optimiser's g-mpbpe to 0.86-1.09x, jerk up to 1.4x the optimiser's, 1.7x on TRON1).
+there the Jacobi-style prior mostly holds frames back (it pulls each frame towards its neighbours'
+previous iterate, so frames cannot move together within one iteration). Its K iterations are
+Levenberg-Marquardt on the whole window instead (:func:`mer_models.ik.coupled_lm_ik`): the same
+terms, the prior's frame coupling solved exactly (one block-tridiagonal system per sample), joints
+held at a limit the gradient pushes past, one damping per sample (docs/model.md §The optimiser as
+a refinement: on LAFAN1, 5 iterations from `mer-base`'s output land at 0.81-0.99x the optimiser's
+g-mpbpe with 0.53-0.99x its jerk, on all 16 source-target pairs).
 
 Stage 2 (``iters > 0``, off by default): Adam on the whole energy, velocity terms included, with
 limits by construction (``q = lower + (upper - lower) sigmoid(z)``, ``R = R_1 Exp(omega)``, a
@@ -28,7 +30,7 @@ cosine-decayed step). Measured on LAFAN1 it lowered g-mpbpe by 0.2 mm on H1 whil
 jerk (it moves weakly constrained joints), so the default leaves it out (docs/model.md).
 
 Every sample's result depends on its own data only: the loss is a *sum* over samples, and the
-Levenberg-Marquardt damping, acceptance and solve are per frame.
+Levenberg-Marquardt damping, acceptance and solve are per frame (per sample for a warm start).
 """
 
 from __future__ import annotations
@@ -38,25 +40,17 @@ import math
 
 import torch
 
-from mer_data.errors import MerError
 from mer_data.rotations import axis_angle_to_matrix, matrix_to_quat, quat_slerp, quat_to_matrix
 
 from .config import EnergyConfig
 from .edm import _logit_of, limit_clip
 from .energy import energy_terms
-from .ik import DEFAULT_SMOOTH, DEFAULT_TOL, gauss_newton_ik
+from .ik import DEFAULT_SMOOTH, DEFAULT_TOL, coupled_lm_ik, gauss_newton_ik
 from .kinematics import BatchGraph
 
 log = logging.getLogger(__name__)
 
-__all__ = [
-    "optimize_motion",
-    "free_iterations",
-    "check_free_iterations",
-    "DEFAULT_ITERS",
-    "DEFAULT_GN_ITERS",
-    "WARM_FREE_ITERS",
-]
+__all__ = ["optimize_motion", "DEFAULT_ITERS", "DEFAULT_GN_ITERS"]
 
 #: Adam iterations of stage 2 (0: off; see the module docstring).
 DEFAULT_ITERS = 0
@@ -67,32 +61,6 @@ DEFAULT_GN_ITERS = 30
 #: from the interpolated solution and get ``DEFAULT_REFINE_ITERS`` iterations (1: off).
 DEFAULT_STRIDE = 2
 DEFAULT_REFINE_ITERS = 10
-#: Most iterations of a warm start that run without the temporal prior (:func:`free_iterations`).
-WARM_FREE_ITERS = 2
-
-
-def free_iterations(gn_iters: int) -> int:
-    """Of ``gn_iters`` warm-started iterations, how many run without the temporal prior first:
-    ``WARM_FREE_ITERS``, never more than half (1 → 0, 2 or 3 → 1, 4 and more → 2)."""
-    return min(WARM_FREE_ITERS, max(gn_iters, 0) // 2)
-
-
-def check_free_iterations(free_iters: int | None, gn_iters: int, *, flags: tuple[str, str] = ("free_iters", "gn_iters")) -> int:
-    """The number of prior-free warm-start iterations to run: :func:`free_iterations` when
-    ``free_iters`` is None, else ``free_iters`` itself, refused unless ``0 <= free_iters <= gn_iters``.
-
-    ``flags`` names the two values in the error (``("--refine-free", "--refine")`` on the command line).
-    """
-    if free_iters is None:
-        return free_iterations(gn_iters)
-    if not 0 <= free_iters <= gn_iters:
-        name, bound = flags
-        raise MerError(
-            f"{name} must be between 0 and {bound} ({gn_iters}), got {free_iters}",
-            fix=f"give {name} N with 0 <= N <= {bound}",
-        )
-    return free_iters
-
 
 def _interpolate(coarse: dict[str, torch.Tensor], idx: torch.Tensor, T: int) -> dict[str, torch.Tensor]:
     """Key-frame solutions at frames ``idx`` (K,) → every frame of 0..T-1: angles and base position
@@ -128,7 +96,6 @@ def optimize_motion(
     lr: float = 0.02,
     fps: float = 30.0,
     init: dict[str, torch.Tensor] | None = None,
-    free_iters: int | None = None,
     stats: dict | None = None,
 ) -> dict[str, torch.Tensor]:
     """Minimise the energy for a batch.
@@ -145,10 +112,9 @@ def optimize_motion(
         stride, refine_iters: without ``init``, stage 1 first solves every ``stride``-th frame
             (``gn_iters``), then all frames from the interpolation (at most ``refine_iters``).
         lr: step of the angle logits [1] and base rotation [rad]; the base position uses lr/5 [m].
-        init: optional warm start ``{"q", "base_pos", "base_rot"}`` (e.g. a model's output).
-        free_iters: with ``init``, how many of the ``gn_iters`` iterations run first without the
-            temporal prior (default :func:`free_iterations`; 0: all with it; outside 0..gn_iters:
-            :class:`~mer_data.errors.MerError`). Ignored without ``init``.
+        init: optional warm start ``{"q", "base_pos", "base_rot"}`` (e.g. a model's output): then
+            stage 1 is ``gn_iters`` iterations of :func:`~mer_models.ik.coupled_lm_ik` (with
+            ``smooth > 0``; else frame by frame).
         stats: receives ``gn_iterations``.
 
     Returns:
@@ -179,20 +145,14 @@ def optimize_motion(
                 warm = _interpolate({"q": qk, "base_pos": pk, "base_rot": rk}, idx, T)
                 q0, p0, r0 = warm["q"], warm["base_pos"], warm["base_rot"]
                 ik_iters = min(gn_iters, refine_iters)
-            planned_free = free_run = 0
-            if init is not None and smooth > 0:
-                planned_free = check_free_iterations(free_iters, gn_iters)
-            if planned_free:  # the warm start is smooth: frame by frame first, then the prior takes the jitter out
-                free_stats: dict = {}
-                q0, p0, r0 = gauss_newton_ik(cfg, graph, eta, goal, q0, p0, r0, iters=planned_free, smooth=0.0, tol=tol,
-                                             stats=free_stats, **gkw)  # fmt: skip
-                ik_iters -= planned_free
-                free_run = free_stats["iterations"]
-            if ik_iters > 0:
+            if init is not None and smooth > 0:  # the whole window at once (module docstring)
+                q0, p0, r0 = coupled_lm_ik(cfg, graph, eta, goal, q0, p0, r0, iters=ik_iters, smooth=smooth, tol=tol,
+                                           stats=ik_stats, **gkw)  # fmt: skip
+            else:
                 q0, p0, r0 = gauss_newton_ik(cfg, graph, eta, goal, q0, p0, r0, iters=ik_iters, smooth=smooth, tol=tol,
                                              stats=ik_stats, **gkw)  # fmt: skip
             if stats is not None:
-                stats["gn_iterations"] = free_run + ik_stats.get("iterations", 0)
+                stats["gn_iterations"] = ik_stats.get("iterations", 0)
     if iters > 0:
         z = _logit_of(q0, lower, upper).clone().requires_grad_(True)
         pos = p0.clone().requires_grad_(True)

@@ -104,7 +104,7 @@ def _reference_points(scaled: np.ndarray, shift: np.ndarray, eta: np.ndarray) ->
 
 
 def _optimize_sequence(feats, scaled, rot_goals, ref: Skeleton, target: Skeleton, eta, energy: EnergyConfig, fps, iters, gn_iters, device,
-                       smooth: float = DEFAULT_SMOOTH, init: dict | None = None, free_iters: int | None = None):
+                       smooth: float = DEFAULT_SMOOTH, init: dict | None = None):
     from mer_data.samples import TrainingSample, collate
 
     batch = collate([TrainingSample(feats[:3].astype(np.float32), ref, target, eta)])
@@ -118,7 +118,7 @@ def _optimize_sequence(feats, scaled, rot_goals, ref: Skeleton, target: Skeleton
     if init is not None:
         warm = {k: torch.from_numpy(np.asarray(init[k])).float()[None].to(device) for k in ("q", "base_pos", "base_rot")}
     out = optimize_motion(energy, g, eta_t, goal, rot, iters=iters, gn_iters=gn_iters, fps=fps, goal_rot=goal_rot, rot_mask=rot_mask,
-                        smooth=smooth, init=warm, free_iters=free_iters)
+                        smooth=smooth, init=warm)
     return {k: out[k][0].double().cpu().numpy() for k in ("q", "base_pos", "base_rot")}
 
 
@@ -152,7 +152,6 @@ def retarget_features_many(
     opt_smooth: float = DEFAULT_SMOOTH,
     energy: EnergyConfig | None = None,
     refine: int = 0,
-    refine_free: int | None = None,
     progress: Callable[[int, int], None] | None = None,
     bf16: bool = False,
 ) -> list[RetargetResult]:
@@ -163,8 +162,8 @@ def retarget_features_many(
     once per window for all of them (:func:`~mer_models.long_horizon.retarget_sequences`).
     ``opt_*`` and ``energy`` set the optimiser (``opt_smooth``: its temporal prior,
     :mod:`mer_models.ik`). ``refine`` > 0 warm-starts the optimiser from the model's output for at
-    most that many Levenberg-Marquardt iterations (diffusion only), the first ``refine_free`` of them
-    without the temporal prior (None: up to 2, at most half; :func:`mer_models.optimize.free_iterations`). ``allow_unseen`` retargets to a
+    most that many Levenberg-Marquardt iterations on the whole motion (diffusion only;
+    :func:`mer_models.ik.coupled_lm_ik`). ``allow_unseen`` retargets to a
     robot the model never saw (zero-shot; the paper fine-tunes instead). ``progress`` gets
     (windows done, windows) of the model's pass. ``bf16``: the network under bfloat16 autocast
     (diffusion only; about twice as fast on CPUs with AMX, :mod:`mer_models.precision`).
@@ -204,7 +203,7 @@ def retarget_features_many(
             for i, (t, eta, (feats, scaled, shift, rot_goals)) in enumerate(zip(tgts, etas, prepared)):
                 init = {"q": outs[i]["q"], "base_pos": np.asarray(outs[i]["base_pos"]) - shift, "base_rot": outs[i]["base_rot"]}
                 out = _optimize_sequence(feats, scaled, rot_goals, ref, t, eta, energy or EnergyConfig(), fps, 0, refine, device,
-                                         smooth=opt_smooth, init=init, free_iters=refine_free)  # fmt: skip
+                                         smooth=opt_smooth, init=init)  # fmt: skip
                 out["base_pos"] = out["base_pos"] + shift
                 outs[i] = out
             labels = [f"diffusion+refine{refine}"] * len(tgts)

@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from .retarget import add_refine_free_option, check_refine_free
+from .retarget import check_refine
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -24,7 +24,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--methods", nargs="+", default=None, choices=["model", "refine", "optimize"],
                    help="default: model and optimize (optimize only without --model); refine: the model, then --refine K optimiser iterations")
     p.add_argument("--refine", type=int, default=5, metavar="K", help="optimiser iterations of the refine method (default 5)")
-    add_refine_free_option(p)
     p.add_argument("--stride", type=int, default=60, help="window stride [frames] (default 60)")
     p.add_argument("--max-windows", type=int, help="at most N windows per domain, spread over the clips")
     p.add_argument("--steps", type=int, help="sampler steps (default: the model's)")
@@ -49,11 +48,11 @@ def cmd_evaluate(args) -> int:
     from mer_models.evaluate import EvalOptions, evaluate, format_table
     from mer_data.atomic import atomic_write
 
-    check_refine_free(args)
+    check_refine(args)
     ckpt = resolve_model(args.model, args.device) if args.model else None
     methods = tuple(args.methods or (("model", "optimize") if ckpt is not None else ("optimize",)))
     opts = EvalOptions(split=args.split, stride=args.stride, max_windows=args.max_windows, methods=methods,
-                       steps=args.steps, guidance=args.guidance, init_noise=args.init_noise, batch_size=args.batch_size, seed=args.seed, scaling=args.scaling, refine=args.refine, refine_free=args.refine_free, bf16=args.bf16,
+                       steps=args.steps, guidance=args.guidance, init_noise=args.init_noise, batch_size=args.batch_size, seed=args.seed, scaling=args.scaling, refine=args.refine, bf16=args.bf16,
                        **{k: v for k, v in {"opt_iters": args.opt_iters, "opt_gn_iters": args.opt_gn_iters}.items() if v is not None})  # fmt: skip
     report = evaluate(args.input, args.source, args.targets, checkpoint=ckpt, opts=opts,
                       progress=lambda s: print(s, file=sys.stderr))  # fmt: skip

@@ -6,18 +6,12 @@ import argparse
 import sys
 
 
-def add_refine_free_option(p: argparse.ArgumentParser) -> None:
-    """``--refine-free N`` (``mer retarget`` and ``mer evaluate``): see :func:`mer_models.optimize.free_iterations`."""
-    p.add_argument("--refine-free", type=int, default=None, metavar="N",
-                   help="of the --refine iterations, how many run first without the optimiser's temporal prior, frame by frame "
-                        "(default: 2, at most half; 0: all with it, smoother but farther from the goals; docs/model.md)")  # fmt: skip
+def check_refine(args: argparse.Namespace) -> None:
+    """Refuse ``--refine K`` below 0 before any work starts (``mer retarget`` and ``mer evaluate``)."""
+    if args.refine < 0:
+        from mer_data.errors import MerError
 
-
-def check_refine_free(args: argparse.Namespace) -> None:
-    """Refuse ``--refine-free N`` outside ``0..--refine`` before any work starts."""
-    from mer_models.optimize import check_free_iterations
-
-    check_free_iterations(args.refine_free, args.refine, flags=("--refine-free", "--refine"))
+        raise MerError(f"--refine must be >= 0, got {args.refine}", fix="give --refine K with K >= 0 (0: the model alone)")
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -62,7 +56,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="sampling seed")
     p.add_argument("--refine", type=int, default=0, metavar="K", help="diffusion: then at most K optimiser iterations from the "
                    "model's output (fast and exact; default 0: the model alone)")
-    add_refine_free_option(p)
     p.add_argument("--bf16", action="store_true", help="diffusion: the network in bfloat16 (about twice as fast on CPUs with AMX "
                    "or AVX512-BF16 and on GPUs, within 0.5 mm of float32 on LAFAN1; emulated and slower elsewhere: a warning says so)")
     p.add_argument("--fps", type=float, default=30.0, help="frame rate of the input (resampled to 30 Hz)")
@@ -82,11 +75,9 @@ def cmd_retarget(args) -> int:
     args.method = args.method or "diffusion"
     if not any([args.output, args.npz, args.mcap, args.plot, args.video]):
         raise MerError("nothing to write", fix="give -o OUT.csv and/or --npz/--mcap/--plot/--video")
-    if args.refine < 0:
-        raise MerError(f"--refine must be >= 0, got {args.refine}")
-    check_refine_free(args)
+    check_refine(args)
     kw = {"steps": args.steps, "guidance": args.guidance, "seed": args.seed, "allow_unseen": args.allow_unseen, "refine": args.refine,
-          "refine_free": args.refine_free, "bf16": args.bf16}  # fmt: skip
+          "bf16": args.bf16}  # fmt: skip
     if args.method == "optimize":
         if args.refine:
             raise MerError("--refine refines a model's output", fix="use it with --method diffusion (the optimiser alone needs no refinement)")
