@@ -428,7 +428,7 @@ def coupled_lm_ik(
         free = torch.cat([~fixed, torch.ones(B, T, 6, dtype=torch.bool, device=P.dev)], -1).to(P.dtype)
         h = h * free[..., :, None] * free[..., None, :] + torch.diag_embed(1 - free)
         g = g * free
-        c = coupling[:, None] * free[:, 1:] * free[:, :-1] if T > 1 else coupling[:, None, :0]
+        c = coupling[:, None] * free[:, 1:] * free[:, :-1]  # (B, T-1, n): a held joint is coupled to nothing
         step, solved = _block_tridiagonal_solve(P.damp(h, mu[:, None]), c, -g)
         qd_c, bp_c, br_c = P.candidate(qd, base_pos, base_rot, step)
         pos_c, rot_c, kp_c, ocols_c, fit_c = P.fit(qd_c, bp_c, br_c)
