@@ -47,12 +47,12 @@ def attend(q: torch.Tensor, k: torch.Tensor, v: torch.Tensor, mask: torch.Tensor
     """``softmax(q k^T / sqrt(d) + mask) v`` for (N, h, L, d) queries/keys/values; ``mask`` is an
     additive float mask or a bool mask (True = may attend), broadcastable to (N, h, L, S).
 
-    On accelerators this is PyTorch's fused ``scaled_dot_product_attention``; on the CPU the same
-    arithmetic written out, which for these short sequences (L, S <= 60) is 3-7x faster than the
-    CPU's fused kernel in bfloat16 and as fast in float32 (measured on 2 cores with AMX,
-    docs/model.md).
+    PyTorch's fused ``scaled_dot_product_attention`` everywhere except for reduced precision on the
+    CPU, where the fused kernel is 1.2-9x slower than the same arithmetic written out for these
+    short sequences (L, S <= 60); in float32 on the CPU the fused kernel is the faster one
+    (measured on 2 Zen 4 cores, docs/model.md §CPU attention).
     """
-    if q.device.type != "cpu":
+    if q.device.type != "cpu" or q.dtype not in (torch.bfloat16, torch.float16):
         return F.scaled_dot_product_attention(q, k, v, attn_mask=mask, dropout_p=dropout)
     s = (q @ k.transpose(-1, -2)) * (1.0 / math.sqrt(q.shape[-1]))
     s = s.masked_fill(~mask, float("-inf")) if mask.dtype == torch.bool else s + mask.to(s.dtype)
@@ -75,12 +75,10 @@ def grpe_bias(q: torch.Tensor, k: torch.Tensor, psi: torch.Tensor, e_q: torch.Te
     """
     qe = torch.einsum("...hid,rhd->...hir", q, e_q)  # (..., h, I, R)
     ke = torch.einsum("...hjd,rhd->...hjr", k, e_k)  # (..., h, J, R)
-    lead = torch.broadcast_shapes(qe.shape[:-3], ke.shape[:-3], psi.shape[:-2])
-    h, I, J = qe.shape[-3], qe.shape[-2], ke.shape[-2]
-    idx = psi.unsqueeze(-3).expand(lead + (h, I, J))
-    a_q = torch.gather(qe.expand(lead + qe.shape[-3:]), -1, idx)
-    a_k = torch.gather(ke.expand(lead + ke.shape[-3:]), -1, idx.transpose(-1, -2)).transpose(-1, -2)
-    return a_q + a_k
+    # Selecting E[psi_ij] is a product with the one-hot codes: exact, and on the CPU faster than
+    # gathering from an index expanded to (..., h, I, J).
+    onehot = F.one_hot(psi, qe.shape[-1]).to(qe.dtype)  # (..., I, J, R)
+    return torch.einsum("...hir,...ijr->...hij", qe, onehot) + torch.einsum("...hjr,...ijr->...hij", ke, onehot)
 
 
 class _Residual(nn.Module):

@@ -17,8 +17,8 @@ from mer_models.attention import (
 
 
 def test_cpu_attention_equals_the_fused_kernel():
-    """``attend`` writes attention out on the CPU (faster there in bfloat16); same values and
-    gradients as ``scaled_dot_product_attention`` for bool and additive masks, -inf rows included."""
+    """``attend`` has the values and gradients of ``scaled_dot_product_attention`` for bool and
+    additive masks, -inf rows included."""
     g = torch.Generator().manual_seed(0)
     q, k, v = (torch.randn(3, 2, 7, 4, generator=g, dtype=torch.float64, requires_grad=True) for _ in range(3))
     bool_mask = window_mask(7, 3)
@@ -32,6 +32,35 @@ def test_cpu_attention_equals_the_fused_kernel():
         gb = torch.autograd.grad(b.sum(), (q, k, v))
         for x, y in zip(ga, gb):
             torch.testing.assert_close(x, y)
+
+
+def test_cpu_bf16_attention_is_written_out_and_matches_float32():
+    """In bfloat16 on the CPU ``attend`` takes the written-out path (the fused kernel is slower
+    there): its output is the float32 fused kernel's to bf16 precision, masked keys get no weight."""
+    g = torch.Generator().manual_seed(1)
+    q, k, v = (torch.randn(4, 2, 60, 24, generator=g) for _ in range(3))
+    mask = window_mask(60, 31)
+    ref = torch.nn.functional.scaled_dot_product_attention(q, k, v, attn_mask=mask)
+    out = attend(q.bfloat16(), k.bfloat16(), v.bfloat16(), mask)
+    assert out.dtype == torch.bfloat16
+    torch.testing.assert_close(out.float(), ref, atol=3e-2, rtol=3e-2)
+    v_far = v.clone()
+    v_far[:, :, 40:] += 100.0  # keys 40.. are outside frame 0's window: its output must not move
+    out_far = attend(q.bfloat16(), k.bfloat16(), v_far.bfloat16(), mask)
+    torch.testing.assert_close(out_far[:, :, 0], out[:, :, 0], atol=0, rtol=0)
+
+
+def test_grpe_bias_broadcasts_over_frames():
+    """A graph shared by every frame (psi without the time axis) gives the per-frame bias."""
+    torch.manual_seed(2)
+    B, T, h, J, d, R = 2, 3, 2, 5, 4, 6
+    q, k = torch.randn(B, T, h, J, d), torch.randn(B, T, h, J, d)
+    psi = torch.randint(0, R, (B, 1, J, J))
+    e_q, e_k = torch.randn(R, h, d), torch.randn(R, h, d)
+    a = grpe_bias(q, k, psi, e_q, e_k)
+    assert a.shape == (B, T, h, J, J)
+    for t in range(T):
+        torch.testing.assert_close(a[:, t], grpe_bias(q[:, t], k[:, t], psi[:, 0], e_q, e_k))
 
 
 def test_window_mask_sees_fifteen_frames_each_side():
