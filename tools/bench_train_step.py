@@ -2,7 +2,7 @@
 against ungrouped batches, the same trainer, shards and configuration, in one run.
 
     PYTHONPATH=$PWD python tools/bench_train_step.py --shards SHARDS [--config base] [--groups 1 4 8] \\
-        [--steps 6] [--rounds 2] [--threads 1] [--init mer_models/bundled/mer-base]
+        [--steps 6] [--rounds 2] [--threads 1] [--bf16] [--init mer_models/bundled/mer-base]
 
 Each round trains every grouping for ``--steps`` steps from the same weights (the real trainer,
 :func:`mer_models.train.train`, logging every step); a step's time is the gap between two log
@@ -27,12 +27,12 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 
-def step_times(run, ds, steps: int, init: Path | None) -> list[float]:
+def step_times(run, ds, steps: int, init: Path | None, bf16: bool = False) -> list[float]:
     from mer_models.train import train
 
     stamps: list[float] = []
     with tempfile.TemporaryDirectory() as tmp:
-        train(run, ds, Path(tmp) / "c", steps=steps, init=init, progress=lambda rec: stamps.append(time.perf_counter()))
+        train(run, ds, Path(tmp) / "c", steps=steps, init=init, bf16=bf16, progress=lambda rec: stamps.append(time.perf_counter()))
     return [b - a for a, b in zip(stamps, stamps[1:])]
 
 
@@ -44,6 +44,7 @@ def main() -> int:
     ap.add_argument("--steps", type=int, default=6, help="steps per run (the first is left out)")
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--bf16", action="store_true", help="bfloat16 autocast, as `mer train --bf16`")
     ap.add_argument("--init", help="checkpoint folder to start every run from (default: fresh weights)")
     args = ap.parse_args()
 
@@ -61,10 +62,10 @@ def main() -> int:
     for r in range(args.rounds):
         for k in groups if r % 2 == 0 else groups[::-1]:
             run = base.replace(train=dataclasses.replace(base.train, ref_group=k, log_every=1, save_every=10**6))
-            times[k] += step_times(run, ds, args.steps, init)
+            times[k] += step_times(run, ds, args.steps, init, args.bf16)
     peer = statistics.median(times[1])
     batch = base.train.batch_size
-    print(f"{args.config}, batch {batch}, {torch.get_num_threads()} thread(s), {len(ds)} samples, "
+    print(f"{args.config}, batch {batch}, {'bf16' if args.bf16 else 'float32'}, {torch.get_num_threads()} thread(s), {len(ds)} samples, "
           f"{args.rounds} rounds x {args.steps - 1} timed steps per grouping")  # fmt: skip
     print(f"{'ref_group':>9} {'windows/batch':>13} {'s/step (median)':>16} {'min':>6} {'max':>6} {'speed-up':>9}")
     rows = []
@@ -74,7 +75,7 @@ def main() -> int:
         rows.append({"ref_group": k, "windows_per_batch": batch // k, "median_s": med, "min_s": min(t), "max_s": max(t),
                      "speedup_vs_1": peer / med, "steps": len(t)})  # fmt: skip
         print(f"{k:>9} {batch // k:>13} {med:>16.2f} {min(t):>6.2f} {max(t):>6.2f} {peer / med:>8.2f}x")
-    print(json.dumps({"config": args.config, "threads": torch.get_num_threads(), "rows": rows}))
+    print(json.dumps({"config": args.config, "bf16": args.bf16, "threads": torch.get_num_threads(), "rows": rows}))
     return 0
 
 
