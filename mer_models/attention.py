@@ -48,9 +48,9 @@ def attend(q: torch.Tensor, k: torch.Tensor, v: torch.Tensor, mask: torch.Tensor
     additive float mask or a bool mask (True = may attend), broadcastable to (N, h, L, S).
 
     PyTorch's fused ``scaled_dot_product_attention`` everywhere except for reduced precision on the
-    CPU, where the fused kernel is 1.2-9x slower than the same arithmetic written out for these
-    short sequences (L, S <= 60); in float32 on the CPU the fused kernel is the faster one
-    (measured on 2 Zen 4 cores, docs/model.md §CPU attention).
+    CPU, where for these short sequences (L, S <= 60) the same arithmetic written out is 5-8x
+    faster in training (forward + backward) and up to 2.4x at inference; in float32 on the CPU the
+    fused kernel is the faster one (2 AMD EPYC cores, docs/model.md §CPU attention).
     """
     if q.device.type != "cpu" or q.dtype not in (torch.bfloat16, torch.float16):
         return F.scaled_dot_product_attention(q, k, v, attn_mask=mask, dropout_p=dropout)
