@@ -17,7 +17,7 @@ from .config import EnergyConfig, SamplerConfig
 from .kinematics import graph_from_batch
 from .model import Conditions, RetargetModel
 from .ik import DEFAULT_SMOOTH
-from .optimize import DEFAULT_GN_ITERS, DEFAULT_ITERS, optimize_motion
+from .optimize import DEFAULT_FINE, DEFAULT_GN_ITERS, DEFAULT_ITERS, optimize_motion
 from .precision import network_autocast
 from .sampling import (
     CountingDenoiser,
@@ -110,12 +110,14 @@ def optimize_batch(
     device: str | torch.device = "cpu",
     init: Mapping[str, torch.Tensor] | None = None,
     smooth: float = DEFAULT_SMOOTH,
+    fine: str = DEFAULT_FINE,
 ) -> dict[str, torch.Tensor]:
     """The optimiser on a collated batch, in the batch's frame (no model needed).
 
-    ``init`` warm-starts it (``q``, ``base_pos``, ``base_rot``: e.g. a model's output to refine);
-    (``gn_iters`` iterations on whole windows, :func:`mer_models.ik.coupled_lm_ik`); ``smooth``:
-    the weight of its temporal prior.
+    ``init`` warm-starts it (``q``, ``base_pos``, ``base_rot``: e.g. a model's output to refine;
+    ``gn_iters`` iterations on whole windows, :func:`mer_models.ik.coupled_lm_ik`); ``smooth``:
+    the weight of its temporal prior; ``fine``: the solver of its fine stage without ``init``
+    (:data:`mer_models.optimize.DEFAULT_FINE`).
     """
     g = graph_from_batch(batch, "tgt", device)
     goal = batch["ref_scaled_pos"].to(device, torch.float32)
@@ -124,6 +126,6 @@ def optimize_batch(
     if "ref_goal_rot" in batch:
         rkw = {"goal_rot": batch["ref_goal_rot"].to(device, torch.float32), "rot_mask": batch["ref_rot_mask"].to(device)}
     out = optimize_motion(energy, g, batch["joint_map"].to(device, torch.float32), goal, ref_rot, iters=iters, gn_iters=gn_iters,
-                          init=init, smooth=smooth, **rkw)  # fmt: skip
+                          init=init, smooth=smooth, fine=fine, **rkw)  # fmt: skip
     return {"q": out["q"], "base_pos": out["base_pos"], "base_rot": out["base_rot"], "energy": out["energy"]}
 

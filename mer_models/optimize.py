@@ -14,6 +14,9 @@ onto the limits, stopping once every frame has converged. Without a warm start i
 fine: every 2nd frame from the nominal angles, the scaled reference's base trajectory and the
 reference's base orientation; then every frame from the interpolation of those key frames, which
 is close enough that a few iterations finish it (and neighbouring frames start in the same basin).
+Those few are whole-window iterations (``fine="coupled"``, below; :data:`OPTIMIZER_VERSION` 2): on
+LAFAN1, 4 of them land at 0.94-0.99x the g-mpbpe of the 10 Jacobi ones of version 1, with 0.66-1.01x
+its jerk, in 0.85x the time (median over 16 source-target pairs; docs/model.md §The optimiser).
 
 A warm start (``init``: a model's output, ``--refine K``) is already smooth and near the goals;
 there the Jacobi-style prior mostly holds frames back (it pulls each frame towards its neighbours'
@@ -50,7 +53,7 @@ from .kinematics import BatchGraph
 
 log = logging.getLogger(__name__)
 
-__all__ = ["optimize_motion", "DEFAULT_ITERS", "DEFAULT_GN_ITERS"]
+__all__ = ["optimize_motion", "DEFAULT_ITERS", "DEFAULT_GN_ITERS", "DEFAULT_FINE", "FINE_ITERS", "FINE_OF_VERSION", "OPTIMIZER_VERSION"]
 
 #: Adam iterations of stage 2 (0: off; see the module docstring).
 DEFAULT_ITERS = 0
@@ -58,9 +61,19 @@ DEFAULT_ITERS = 0
 DEFAULT_GN_ITERS = 30
 #: Coarse-to-fine warm start: every ``DEFAULT_STRIDE``-th frame is solved first (4 was faster but
 #: let Valkyrie's wrists settle in different branches between key frames: jerk 0.022 -> 0.046), the rest start
-#: from the interpolated solution and get ``DEFAULT_REFINE_ITERS`` iterations (1: off).
+#: from the interpolated solution and get the fine stage (1: off).
 DEFAULT_STRIDE = 2
-DEFAULT_REFINE_ITERS = 10
+#: The fine stage (every frame, from the interpolated key frames): ``"coupled"``, Levenberg-Marquardt
+#: on the whole window (:func:`mer_models.ik.coupled_lm_ik`, as a warm-started refinement), or
+#: ``"jacobi"``, frame by frame with the Jacobi-style prior (the only one before
+#: :data:`OPTIMIZER_VERSION` 2). Most iterations of each: :data:`FINE_ITERS` (docs/model.md §The optimiser).
+DEFAULT_FINE = "coupled"
+FINE_ITERS = {"coupled": 4, "jacobi": 10}
+#: Version of the default schedule, recorded with every teacher solve (a teacher of another one is
+#: solved again): 1 = Jacobi fine stage (10 iterations), 2 = whole-window fine stage (4).
+OPTIMIZER_VERSION = 2
+#: The fine stage of each version.
+FINE_OF_VERSION = {1: "jacobi", 2: "coupled"}
 
 def _interpolate(coarse: dict[str, torch.Tensor], idx: torch.Tensor, T: int) -> dict[str, torch.Tensor]:
     """Key-frame solutions at frames ``idx`` (K,) → every frame of 0..T-1: angles and base position
@@ -92,7 +105,8 @@ def optimize_motion(
     smooth: float = DEFAULT_SMOOTH,
     tol: float = DEFAULT_TOL,
     stride: int = DEFAULT_STRIDE,
-    refine_iters: int = DEFAULT_REFINE_ITERS,
+    fine: str = DEFAULT_FINE,
+    refine_iters: int | None = None,
     lr: float = 0.02,
     fps: float = 30.0,
     init: dict[str, torch.Tensor] | None = None,
@@ -109,8 +123,11 @@ def optimize_motion(
         iters: Adam iterations of stage 2 (0 skips it).
         gn_iters: at most this many Levenberg-Marquardt iterations of stage 1 (0 skips it).
         smooth, tol: stage 1's temporal prior weight and convergence tolerance (:mod:`mer_models.ik`).
-        stride, refine_iters: without ``init``, stage 1 first solves every ``stride``-th frame
-            (``gn_iters``), then all frames from the interpolation (at most ``refine_iters``).
+        stride, fine, refine_iters: without ``init``, stage 1 first solves every ``stride``-th frame
+            (``gn_iters``, frame by frame), then all frames from the interpolation with the ``fine``
+            solver (``"coupled"``: whole windows, ``"jacobi"``: frame by frame), at most
+            ``refine_iters`` iterations (default :data:`FINE_ITERS` of ``fine``). Windows shorter
+            than ``3 * stride`` frames are solved frame by frame from the start (``gn_iters``).
         lr: step of the angle logits [1] and base rotation [rad]; the base position uses lr/5 [m].
         init: optional warm start ``{"q", "base_pos", "base_rot"}`` (e.g. a model's output): then
             stage 1 is ``gn_iters`` iterations of :func:`~mer_models.ik.coupled_lm_ik` (with
@@ -121,6 +138,8 @@ def optimize_motion(
         ``q`` (B, T, Jt) [rad] inside the limits, ``base_pos`` (B, T, 3), ``base_rot`` (B, T, 3, 3),
         and ``energy`` (B,) the final weighted energy; all detached.
     """
+    if fine not in FINE_ITERS:
+        raise ValueError(f"fine={fine!r}: expected one of {', '.join(map(repr, FINE_ITERS))}")
     B, T = goal.shape[:2]
     J = graph.parents.shape[1]
     lower, upper = graph.lower[:, None].expand(B, T, J), graph.upper[:, None].expand(B, T, J)
@@ -136,6 +155,7 @@ def optimize_motion(
         if gn_iters > 0:
             ik_stats: dict = {}
             ik_iters = gn_iters
+            whole = init is not None and smooth > 0  # the whole window at once (module docstring)
             if init is None and stride > 1 and T >= 3 * stride:
                 # coarse to fine: key frames first (the prior spans `stride` frames there: weight / stride^2)
                 idx = torch.unique(torch.cat([torch.arange(0, T, stride), torch.tensor([T - 1])])).to(goal.device)
@@ -144,8 +164,9 @@ def optimize_motion(
                                              smooth=smooth / stride**2, tol=tol, **sub)  # fmt: skip
                 warm = _interpolate({"q": qk, "base_pos": pk, "base_rot": rk}, idx, T)
                 q0, p0, r0 = warm["q"], warm["base_pos"], warm["base_rot"]
-                ik_iters = min(gn_iters, refine_iters)
-            if init is not None and smooth > 0:  # the whole window at once (module docstring)
+                ik_iters = min(gn_iters, FINE_ITERS[fine] if refine_iters is None else refine_iters)
+                whole = fine == "coupled" and smooth > 0
+            if whole:
                 q0, p0, r0 = coupled_lm_ik(cfg, graph, eta, goal, q0, p0, r0, iters=ik_iters, smooth=smooth, tol=tol,
                                            stats=ik_stats, **gkw)  # fmt: skip
             else:

@@ -40,7 +40,7 @@ from mer_data.shards.teacher import TEACHER_FORMAT, TEACHER_VERSION, teacher_pat
 from .config import EnergyConfig
 from .inference import optimize_batch
 from .ik import DEFAULT_SMOOTH
-from .optimize import DEFAULT_GN_ITERS
+from .optimize import DEFAULT_GN_ITERS, FINE_OF_VERSION, OPTIMIZER_VERSION
 
 log = logging.getLogger(__name__)
 
@@ -58,6 +58,8 @@ class SolverConfig:
         smooth: weight of the optimiser's temporal prior (:data:`mer_models.ik.DEFAULT_SMOOTH`).
         scaling_version: :data:`mer_data.scaling.SCALING_VERSION` of the goals (a teacher of older
             goals is solved again).
+        optimizer_version: the optimiser's schedule (:data:`mer_models.optimize.OPTIMIZER_VERSION`;
+            1 solves as the teachers written before version 2 did).
         batch: windows solved together.
     """
 
@@ -66,7 +68,13 @@ class SolverConfig:
     scaling: str = "segments"
     smooth: float = DEFAULT_SMOOTH
     scaling_version: int = SCALING_VERSION
+    optimizer_version: int = OPTIMIZER_VERSION
     batch: int = 64
+
+    def __post_init__(self) -> None:
+        if self.optimizer_version not in FINE_OF_VERSION:
+            raise MerError(f"optimizer_version {self.optimizer_version} is not one of {sorted(FINE_OF_VERSION)}",
+                           fix=f"leave it at the default ({OPTIMIZER_VERSION})")  # fmt: skip
 
     def to_json(self) -> str:
         d = dataclasses.asdict(self)
@@ -200,7 +208,7 @@ def _solve_file(ds: ShardDataset, fi: int, final: Path, solver: SolverConfig, de
                 samples = [ds.slot_sample(fi, r, k) for r, k in part]
                 t0 = time.perf_counter()
                 motion = optimize_batch(solver.energy, collate(samples, scaling=solver.scaling), gn_iters=solver.gn_iters,
-                                        smooth=solver.smooth, device=device)
+                                        smooth=solver.smooth, fine=FINE_OF_VERSION[solver.optimizer_version], device=device)
                 dt = time.perf_counter() - t0
                 q = motion["q"].float().cpu().numpy()
                 pos = motion["base_pos"].float().cpu().numpy()

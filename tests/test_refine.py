@@ -70,8 +70,8 @@ def _warm_start_case():
 def test_a_warm_start_solves_whole_windows_and_lands_at_the_optimiser():
     """``--refine K``: K Levenberg-Marquardt iterations with the frames coupled exactly
     (:func:`mer_models.ik.coupled_lm_ik`). From a smooth warm start 8 cm off, 5 of them land within
-    5 % of the optimiser's g-mpbpe (measured 0.97x) with less jerk, where 5 Jacobi iterations (the
-    optimiser's own solver) stay 1.2x farther off; the cost falls monotonically and every sample is solved on its own."""
+    5 % of the optimiser's g-mpbpe with less jerk than the Jacobi-stage optimiser, where 5 Jacobi
+    iterations stay 1.2x farther off; the cost falls monotonically and every sample is solved on its own."""
     import torch
 
     from mer_models.ik import coupled_lm_ik, gauss_newton_ik
@@ -87,7 +87,11 @@ def test_a_warm_start_solves_whole_windows_and_lands_at_the_optimiser():
     assert (mw["g_mpbpe"] > 0.05).all(), mw["g_mpbpe"]  # the warm start is far off
     assert (mr["g_mpbpe"] < 1.05 * mb["g_mpbpe"]).all(), (mr["g_mpbpe"], mb["g_mpbpe"])
     assert (mj["g_mpbpe"] > 1.15 * mr["g_mpbpe"]).all(), (mj["g_mpbpe"], mr["g_mpbpe"])  # measured 1.2x
-    assert (mr["jerk_frame"] < mb["jerk_frame"]).all(), (mr["jerk_frame"], mb["jerk_frame"])  # measured 0.8-0.85x
+    # less jerk than the optimiser with the Jacobi fine stage (version 1; measured 0.8-0.85x), as
+    # little as the default optimiser, whose fine stage is this solver too
+    v1 = window_metrics(optimize_motion(*args, **kw, fine="jacobi"), b)
+    assert (mr["jerk_frame"] < 0.95 * v1["jerk_frame"]).all(), (mr["jerk_frame"], v1["jerk_frame"])
+    assert (mr["jerk_frame"] < 1.01 * mb["jerk_frame"]).all(), (mr["jerk_frame"], mb["jerk_frame"])
     assert (mr["limit_violation"] == 0).all()
     # the cost never rises, iteration after iteration
     costs = []
@@ -125,7 +129,9 @@ def test_the_block_tridiagonal_solve_is_the_dense_solve():
             if t + 1 < T:
                 dense[:, t * n : (t + 1) * n, (t + 1) * n : (t + 2) * n] = torch.diag_embed(c[:, t])
                 dense[:, (t + 1) * n : (t + 2) * n, t * n : (t + 1) * n] = torch.diag_embed(c[:, t])
-        ref = torch.linalg.solve(dense, rhs.reshape(B, -1)).reshape(B, T, n)
+        # numpy's LAPACK, not torch's: batched float64 LU in torch 2.13's MKL fails at n = 155 with 2
+        # threads on some CPUs ("Parameter 6 was incorrect on entry to DLASWP")
+        ref = torch.from_numpy(np.linalg.solve(dense.numpy(), rhs.reshape(B, -1, 1).numpy())).reshape(B, T, n)
         assert ok.all()
         torch.testing.assert_close(x, ref, atol=1e-10, rtol=1e-10)
     a[1, 3] = -torch.eye(n, dtype=torch.float64)  # not positive definite: that sample gets no step

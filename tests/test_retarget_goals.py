@@ -309,3 +309,29 @@ def test_a_skeletons_json_is_computed_once_and_equal_skeletons_stay_equal():
     assert b is not a and b == a and hash(b) == hash(a) and b.fingerprint == a.fingerprint
     c = a.with_link_scales(np.full(a.num_nodes, 1.1))
     assert c != a and c.fingerprint != a.fingerprint
+
+
+def test_the_whole_window_fine_stage_lands_where_ten_jacobi_iterations_do():
+    """The optimiser's fine stage (``OPTIMIZER_VERSION`` 2): after the key frames, 4 Levenberg-Marquardt
+    iterations on whole windows (``fine="coupled"``) reach the energy of 10 frame-by-frame Jacobi
+    ones (``"jacobi"``, version 1) or lower, with no more jerk and the limits held; an unknown
+    solver is refused."""
+    b = mixed_batch(("h1", "atlas", "tron1"), frames=60)
+    g = graph_from_batch(b, "tgt")
+    rot = axis_angle_to_matrix(b["reference"][:, :, 0, 0:3])
+    args = (EnergyConfig(), g, b["joint_map"], b["ref_scaled_pos"], rot)
+    kw = {"goal_rot": b["ref_goal_rot"], "rot_mask": b["ref_rot_mask"]}
+    st_c: dict = {}
+    coupled = optimize_motion(*args, **kw, stats=st_c)
+    jacobi = optimize_motion(*args, **kw, fine="jacobi")
+    none = optimize_motion(*args, **kw, refine_iters=0)  # the interpolated key frames alone
+    assert st_c["gn_iterations"] <= 4
+    assert (coupled["energy"] <= jacobi["energy"] * 1.01).all(), (coupled["energy"], jacobi["energy"])
+    assert (coupled["energy"] < none["energy"]).all()
+    mc, mj = window_metrics(coupled, b), window_metrics(jacobi, b)
+    assert (mc["g_mpbpe"] <= mj["g_mpbpe"] * 1.02).all(), (mc["g_mpbpe"], mj["g_mpbpe"])
+    assert (mc["jerk_frame"] <= mj["jerk_frame"] * 1.02).all(), (mc["jerk_frame"], mj["jerk_frame"])
+    assert (mc["limit_violation"] == 0).all()
+    with pytest.raises(ValueError, match="fine='newton'"):
+        optimize_motion(*args, **kw, fine="newton")
+

@@ -173,3 +173,28 @@ def test_threads_option_sets_the_jobs_threads_and_refuses_zero(solved, tmp_path,
         assert "--threads must be >= 1" in capsys.readouterr().err
     finally:
         torch.set_num_threads(before)
+
+
+def test_the_teacher_solves_with_the_schedule_it_records(solved, tmp_path):
+    """``SolverConfig.optimizer_version`` is recorded in the teacher file and is what runs: version 1
+    solves with the Jacobi fine stage (the teachers written before version 2), not the default
+    whole-window one; other versions are refused."""
+    from mer_models.optimize import OPTIMIZER_VERSION
+
+    assert SolverConfig().optimizer_version == OPTIMIZER_VERSION == 2
+    with pytest.raises(MerError, match="optimizer_version 3"):
+        SolverConfig(optimizer_version=3)
+    out = tmp_path / "v1"
+    shutil.copytree(solved, out)
+    solve_shards(out, solver=SolverConfig(gn_iters=GN, optimizer_version=1), force=True)
+    ds = ShardDataset(out)
+    assert ds.teachers[0].solver["optimizer_version"] == 1
+    idx = [i for i in range(len(ds)) if ds[i].provenance["target"] == "h1"][:3]
+    batch = collate([ds[i] for i in idx])
+    from mer_models.kinematics import batch_features, graph_from_batch
+
+    g = graph_from_batch(batch, "tgt", "cpu")
+    feats = {fine: batch_features(g, *(lambda m: (m["q"], m["base_pos"], m["base_rot"]))(optimize_batch(EnergyConfig(), batch, gn_iters=GN, fine=fine)))
+             for fine in ("jacobi", "coupled")}  # fmt: skip
+    torch.testing.assert_close(batch["teacher"], feats["jacobi"], atol=2e-4, rtol=0)
+    assert (batch["teacher"] - feats["coupled"]).abs().max() > 1e-3  # the two schedules differ
