@@ -9,7 +9,7 @@ at every step is limited by its optimisation or its representation, not by the a
 
     PYTHONPATH=$PWD python tools/overfit_probe.py --shards SHARDS --out runs/probe [--source g1] [--target h1] \\
         [--samples 16] [--every 5] [--steps 500] [--chunk 100] [--init mer_models/bundled/mer-base] [--config base] \\
-        [--lr 7e-4] [--lr-decay-steps N] [--lr-min-ratio R] [--grad-clip C] [--lam L] [--start-frac F] [--norm-first] [--layers N] [--hidden H] [--diagnose] [--threads 1]
+        [--lr 7e-4] [--lr-decay-steps N] [--lr-min-ratio R] [--grad-clip C] [--lam L] [--start-frac F] [--norm-first] [--layers N] [--hidden H] [--diagnose] [--bf16] [--threads 1]
 
 Each chunk resumes the previous one exactly (``mer_models.train.train``); one JSON line per chunk
 is printed and appended to ``OUT.probe.jsonl``.
@@ -106,6 +106,7 @@ def main() -> None:
     ap.add_argument("--hidden", type=int, help="token width (default: the preset's; from scratch only)")
     ap.add_argument("--diagnose", action="store_true", help="also report where the fitted samples' error sits "
                     "(angles and base against the teacher's, each swapped in turn)")
+    ap.add_argument("--bf16", action="store_true", help="bfloat16 autocast in training (GPUs; CPUs with AMX or AVX512-BF16 only)")
     ap.add_argument("--threads", type=int, default=1)
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -150,7 +151,7 @@ def main() -> None:
     for step in range(args.chunk, args.steps + 1, args.chunk):
         t0 = time.process_time()
         init = Path(args.init) / "model.safetensors" if args.init and step == args.chunk else None
-        train(run, Subset(ds, fit_idx), out, steps=step, resume=step > args.chunk, init=init)
+        train(run, Subset(ds, fit_idx), out, steps=step, resume=step > args.chunk, init=init, bf16=args.bf16)
         fit = where_the_error_sits(out, fit_batch, kp) if args.diagnose else {"fit": model_error(out, fit_batch, kp)}
         row = {"step": step, **fit, "held": model_error(out, held_batch, kp),
                "teacher": teacher, "cpu_min": round((time.process_time() - t0) / 60, 2)}  # fmt: skip
