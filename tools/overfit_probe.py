@@ -9,7 +9,7 @@ at every step is limited by its optimisation or its representation, not by the a
 
     PYTHONPATH=$PWD python tools/overfit_probe.py --shards SHARDS --out runs/probe [--source g1] [--target h1] \\
         [--samples 16] [--every 5] [--steps 500] [--chunk 100] [--init mer_models/bundled/mer-base] [--config base] \\
-        [--lr 7e-4] [--lr-decay-steps N] [--lr-min-ratio R] [--grad-clip C] [--lam L] [--start-frac F] [--norm-first] [--layers N] [--hidden H] [--diagnose] [--bf16] [--threads 1]
+        [--lr 7e-4] [--lr-decay-steps N] [--lr-min-ratio R] [--grad-clip C] [--lam L] [--start-frac F] [--norm-first] [--layers N] [--hidden H] [--ffn F] [--diagnose] [--bf16] [--threads 1]
 
 Each chunk resumes the previous one exactly (``mer_models.train.train``); one JSON line per chunk
 is printed and appended to ``OUT.probe.jsonl``.
@@ -83,6 +83,27 @@ def where_the_error_sits(model_dir: str | Path, batch, keypoints) -> dict[str, f
     }
 
 
+def widen_ffn(state: dict[str, torch.Tensor], ffn: int, seed: int = 0) -> dict[str, torch.Tensor]:
+    """``state`` with every decoder layer's feed-forward hidden width raised to ``ffn``, computing
+    the same function: the new first-layer rows are random (PyTorch's default scale, so they get
+    gradients), their biases and the second layer's new columns zero."""
+    gen = torch.Generator().manual_seed(seed)
+    out = dict(state)
+    for key, w in state.items():
+        if key.endswith(".ffn.0.weight"):
+            old, H = w.shape
+            if ffn < old:
+                raise SystemExit(f"--ffn {ffn} is narrower than the checkpoint's {old}")
+            bound = 1 / H**0.5
+            extra = (torch.rand(ffn - old, H, generator=gen, dtype=torch.float32) * 2 - 1) * bound
+            out[key] = torch.cat([w, extra.to(w.dtype)], 0)
+            b = key[: -len("weight")] + "bias"
+            out[b] = torch.cat([state[b], state[b].new_zeros(ffn - old)])
+            w2 = key.replace(".ffn.0.weight", ".ffn.3.weight")
+            out[w2] = torch.cat([state[w2], state[w2].new_zeros(state[w2].shape[0], ffn - old)], 1)
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--shards", required=True, nargs="+", help="shards with teacher files (mer shards solve)")
@@ -104,6 +125,8 @@ def main() -> None:
     ap.add_argument("--norm-first", action="store_true")
     ap.add_argument("--layers", type=int, help="layers per decoder (default: the preset's; from scratch only)")
     ap.add_argument("--hidden", type=int, help="token width (default: the preset's; from scratch only)")
+    ap.add_argument("--ffn", type=int, help="feed-forward width; with --init, the checkpoint widened to it "
+                    "function-preservingly (new units start silent)")
     ap.add_argument("--diagnose", action="store_true", help="also report where the fitted samples' error sits "
                     "(angles and base against the teacher's, each swapped in turn)")
     ap.add_argument("--bf16", action="store_true", help="bfloat16 autocast in training (GPUs; CPUs with AMX or AVX512-BF16 only)")
@@ -134,7 +157,7 @@ def main() -> None:
     run = run.replace(train=dataclasses.replace(run.train, **over))
     if args.norm_first:
         run = run.replace(model=dataclasses.replace(run.model, norm_first=True))
-    for key in ("layers", "hidden"):
+    for key in ("layers", "hidden", "ffn"):
         if getattr(args, key) is not None:
             run = run.replace(model=dataclasses.replace(run.model, **{key: getattr(args, key)}))
     if args.lam is not None:
@@ -151,6 +174,12 @@ def main() -> None:
     for step in range(args.chunk, args.steps + 1, args.chunk):
         t0 = time.process_time()
         init = Path(args.init) / "model.safetensors" if args.init and step == args.chunk else None
+        if init is not None and args.ffn is not None:
+            from safetensors.torch import load_file, save_file
+
+            out.mkdir(parents=True, exist_ok=True)
+            save_file(widen_ffn(load_file(str(init)), args.ffn), str(out / "widened.safetensors"))
+            init = out / "widened.safetensors"
         train(run, Subset(ds, fit_idx), out, steps=step, resume=step > args.chunk, init=init, bf16=args.bf16)
         fit = where_the_error_sits(out, fit_batch, kp) if args.diagnose else {"fit": model_error(out, fit_batch, kp)}
         row = {"step": step, **fit, "held": model_error(out, held_batch, kp),
