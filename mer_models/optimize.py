@@ -24,8 +24,8 @@ previous iterate, so frames cannot move together within one iteration). Its K it
 Levenberg-Marquardt on the whole window instead (:func:`mer_models.ik.coupled_lm_ik`): the same
 terms, the prior's frame coupling solved exactly (one block-tridiagonal system per sample), joints
 held at a limit the gradient pushes past, one damping per sample (docs/model.md §The optimiser as
-a refinement: on LAFAN1, 5 iterations from `mer-base`'s output land at 0.81-0.99x the optimiser's
-g-mpbpe with 0.53-0.99x its jerk, on all 16 source-target pairs).
+a refinement: on LAFAN1, 5 iterations from `mer-base`'s output land at 0.85-1.01x the optimiser's
+g-mpbpe with 0.77-1.00x its jerk, on all 16 source-target pairs).
 
 Stage 2 (``iters > 0``, off by default): Adam on the whole energy, velocity terms included, with
 limits by construction (``q = lower + (upper - lower) sigmoid(z)``, ``R = R_1 Exp(omega)``, a
