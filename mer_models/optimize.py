@@ -69,8 +69,8 @@ DEFAULT_STRIDE = 2
 #: :data:`OPTIMIZER_VERSION` 2). Most iterations of each: :data:`FINE_ITERS` (docs/model.md §The optimiser).
 DEFAULT_FINE = "coupled"
 FINE_ITERS = {"coupled": 4, "jacobi": 10}
-#: Version of the default schedule, recorded with every teacher solve (a teacher of another one is
-#: solved again): 1 = Jacobi fine stage (10 iterations), 2 = whole-window fine stage (4).
+#: Version of the default schedule, recorded with every teacher solve (``mer shards solve`` refuses a
+#: folder solved by another one until ``--force``): 1 = Jacobi fine stage (10 iterations), 2 = whole-window fine stage (4).
 OPTIMIZER_VERSION = 2
 #: The fine stage of each version.
 FINE_OF_VERSION = {1: "jacobi", 2: "coupled"}

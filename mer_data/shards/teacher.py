@@ -18,7 +18,7 @@ subfolder, so the shard folder's ``*.h5`` glob never mistakes it for a shard):
 * ``solved`` (rows, S) bool: which samples hold a solution (a partial file is resumed from it).
 * root attributes: ``format`` (``mer-teacher``), ``format_version``, ``shard_build_id``,
   ``shard_file``, ``rows``, ``samples_per_row``, ``solver`` (JSON: energy weights, iterations,
-  scaling, batch) and, when complete, ``seconds`` and ``frames`` (solver throughput).
+  scaling, prior weight, ``scaling_version``, ``optimizer_version``) and, when complete, ``seconds`` and ``frames`` (solver throughput).
 
 ``S`` is the shard's ``samples_per_row`` (targets x variants) and ``J`` its largest target.
 """
