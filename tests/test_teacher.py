@@ -186,7 +186,8 @@ def test_the_teacher_solves_with_the_schedule_it_records(solved, tmp_path):
         SolverConfig(optimizer_version=3)
     out = tmp_path / "v1"
     shutil.copytree(solved, out)
-    solve_shards(out, solver=SolverConfig(gn_iters=GN, optimizer_version=1), force=True)
+    assert main(["shards", "solve", str(out), "--gn-iters", str(GN), "--optimizer-version", "1", "--batch", "3", "--quiet"]) == 1  # refused: v2 there
+    assert main(["shards", "solve", str(out), "--gn-iters", str(GN), "--optimizer-version", "1", "--batch", "3", "--quiet", "--force"]) == 0
     ds = ShardDataset(out)
     assert ds.teachers[0].solver["optimizer_version"] == 1
     idx = [i for i in range(len(ds)) if ds[i].provenance["target"] == "h1"][:3]

@@ -21,6 +21,9 @@ def add_parser(ss: argparse._SubParsersAction) -> None:
     p.add_argument("--out", metavar="DIR", help="folder of the teacher files (default: teacher/ beside the shards)")
     p.add_argument("--gn-iters", type=int, default=None, metavar="N", help="most Levenberg-Marquardt iterations (default: the optimiser's)")
     p.add_argument("--scaling", choices=["segments", "parts"], default="segments", help="reference scaling (default segments)")
+    p.add_argument("--optimizer-version", type=int, choices=[1, 2], default=None, metavar="V",
+                   help="the optimiser's schedule: 2 (default) finishes with whole-window iterations, 1 with Jacobi "
+                        "ones, as teachers solved before version 2 were (docs/model.md, The optimiser)")
     p.add_argument("--batch", type=int, default=64, metavar="N", help="windows solved together (default 64)")
     p.add_argument("--shard-index", type=int, default=None, metavar="I", help="solve only shard files i with i %% N == I")
     p.add_argument("--num-shards", type=int, default=1, metavar="N", help="number of parallel jobs (default 1)")
@@ -50,6 +53,8 @@ def cmd_solve(args) -> int:
         if args.gn_iters < 1:
             raise MerError("--gn-iters must be >= 1")
         kw["gn_iters"] = args.gn_iters
+    if args.optimizer_version is not None:
+        kw["optimizer_version"] = args.optimizer_version
     bar = None
     if not args.quiet:
         from tqdm import tqdm
