@@ -67,13 +67,13 @@ DEFAULT_STRIDE = 2
 #: on the whole window (:func:`mer_models.ik.coupled_lm_ik`, as a warm-started refinement), or
 #: ``"jacobi"``, frame by frame with the Jacobi-style prior (the only one before
 #: :data:`OPTIMIZER_VERSION` 2). Most iterations of each: :data:`FINE_ITERS` (docs/model.md §The optimiser).
-DEFAULT_FINE = "coupled"
 FINE_ITERS = {"coupled": 4, "jacobi": 10}
+#: The fine stage of each version of the schedule.
+FINE_OF_VERSION = {1: "jacobi", 2: "coupled"}
 #: Version of the default schedule, recorded with every teacher solve (``mer shards solve`` refuses a
 #: folder solved by another one until ``--force``): 1 = Jacobi fine stage (10 iterations), 2 = whole-window fine stage (4).
 OPTIMIZER_VERSION = 2
-#: The fine stage of each version.
-FINE_OF_VERSION = {1: "jacobi", 2: "coupled"}
+DEFAULT_FINE = FINE_OF_VERSION[OPTIMIZER_VERSION]
 
 def _interpolate(coarse: dict[str, torch.Tensor], idx: torch.Tensor, T: int) -> dict[str, torch.Tensor]:
     """Key-frame solutions at frames ``idx`` (K,) → every frame of 0..T-1: angles and base position

@@ -334,4 +334,3 @@ def test_the_whole_window_fine_stage_lands_where_ten_jacobi_iterations_do():
     assert (mc["limit_violation"] == 0).all()
     with pytest.raises(ValueError, match="fine='newton'"):
         optimize_motion(*args, **kw, fine="newton")
-
