@@ -40,3 +40,18 @@ def test_a_wider_feed_forward_computes_the_same_function_and_can_learn():
     assert w2.grad[:, MICRO.ffn :].abs().sum() > 0
     with pytest.raises(SystemExit, match="narrower"):
         widen_ffn(narrow.state_dict(), MICRO.ffn - 1)
+
+
+def test_a_learning_curve_starts_a_wider_run_from_the_widened_checkpoint(tmp_path):
+    from learning_curve import widened_init
+    from safetensors.torch import load_file, save_file
+
+    init = tmp_path / "init" / "model.safetensors"
+    init.parent.mkdir()
+    save_file(RetargetModel(MICRO).state_dict(), str(init))
+    dest = tmp_path / "run.widened.safetensors"
+    assert widened_init(init, MICRO.ffn, dest) == init and not dest.exists()  # already that wide: read as it is
+    assert widened_init(init, 2 * MICRO.ffn, dest) == dest
+    wide = RetargetModel(dataclasses.replace(MICRO, ffn=2 * MICRO.ffn))
+    wide.load_state_dict(load_file(str(dest)))  # strict: the shapes of the wider network
+    assert not dest.with_name(dest.name + ".tmp").exists()

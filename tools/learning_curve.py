@@ -50,6 +50,26 @@ def held_out(ckpt_dir: Path, eval_input: str, source: str, targets: list[str], w
     return out
 
 
+def widened_init(init: Path, ffn: int, dest: Path) -> Path:
+    """``init``'s weights with every feed-forward widened to ``ffn`` (the same function;
+    ``overfit_probe.widen_ffn``), written to ``dest``; ``init`` itself when already that wide."""
+    from safetensors.torch import load_file, save_file
+
+    sys.path.insert(0, str(REPO / "tools"))
+    from overfit_probe import widen_ffn
+
+    state = load_file(str(init))
+    widths = {w.shape[0] for k, w in state.items() if k.endswith(".ffn.0.weight")}
+    if widths == {ffn}:
+        return init
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    tmp = dest.with_name(dest.name + ".tmp")
+    save_file(widen_ffn(state, ffn), str(tmp))
+    tmp.replace(dest)
+    log.info("%s widened to a feed-forward of %d: %s", init, ffn, dest)
+    return dest
+
+
 def run_curve(cfg_name: str, args, out: Path, minutes: float) -> list[dict]:
     import torch
 
@@ -78,6 +98,8 @@ def run_curve(cfg_name: str, args, out: Path, minutes: float) -> list[dict]:
         run = run.replace(sampler=dataclasses.replace(run.sampler, feedback_sigma=args.feedback_sigma))
     if args.norm_first:
         run = run.replace(model=dataclasses.replace(run.model, norm_first=True))
+    if args.ffn is not None:
+        run = run.replace(model=dataclasses.replace(run.model, ffn=args.ffn))
     if args.ref_group:
         run = run.replace(train=dataclasses.replace(run.train, ref_group=args.ref_group))
     run = run.replace(train=dataclasses.replace(run.train, save_every=args.chunk_steps, log_every=min(10, args.chunk_steps)))
@@ -88,11 +110,14 @@ def run_curve(cfg_name: str, args, out: Path, minutes: float) -> list[dict]:
     wall = curve[-1]["wall_min"] if curve else 0.0
     step = curve[-1]["step"] if curve else 0
     info = {"shards": [str(p) for p in ds.paths], "samples": len(ds), "teacher": True}
+    init = Path(args.init) / "model.safetensors" if args.init else None
+    if init is not None and args.ffn is not None and not (out / "config.json").is_file():
+        init = widened_init(init, args.ffn, out.parent / f"{out.name}.widened.safetensors")
     while (wall if args.clock == "wall" else cpu) < minutes or step == 0:
         c0, w0 = time.process_time(), time.time()
         resume = (out / "config.json").is_file()
         res = train(run, ds, out, steps=step + args.chunk_steps, resume=resume, bf16=args.bf16, data_info=info, device=args.device,
-                    init=None if resume or not args.init else Path(args.init) / "model.safetensors")  # fmt: skip
+                    init=None if resume else init)  # fmt: skip
         cpu += (time.process_time() - c0) / 60
         wall += (time.time() - w0) / 60
         step = res.step
@@ -129,6 +154,8 @@ def main() -> int:
                     "e.g. feedback 2; default: the preset's")
     ap.add_argument("--init", metavar="DIR", help="start from this checkpoint's weights (fresh optimiser), e.g. the bundled "
                     "mer-base, to continue training in a session that lacks the run folder")
+    ap.add_argument("--ffn", type=int, help="feed-forward width instead of the preset's; with --init, the checkpoint "
+                    "widened to it function-preservingly (tools/overfit_probe.py widen_ffn)")
     ap.add_argument("--norm-first", action="store_true", help="pre-norm layers (ModelConfig.norm_first) instead of the preset's post-norm")
     ap.add_argument("--ref-group", type=int, help="samples per reference window in a batch (TrainConfig.ref_group)")
     ap.add_argument("--bf16", action="store_true", help="bfloat16 autocast (GPUs; CPUs with AMX or AVX512-BF16 only)")

@@ -324,10 +324,13 @@ def main() -> int:
         else:
             print(f"evaluation: none ({evaluation} does not exist); the card holds the training metrics only")
     elif args.lafan1:
+        from mer_data.atomic import atomic_write
+
+        work.mkdir(parents=True, exist_ok=True)  # before the minutes of evaluation, not after
         reports = evaluate_step(run_dir, args.lafan1)
         for r in reports.values():
             r["sampler"] = sampler
-        evaluation.write_text(json.dumps(reports, indent=2) + "\n")
+        atomic_write(evaluation, json.dumps(reports, indent=2) + "\n")
         metrics = card_metrics(reports, sampler)
     if not args.no_bundle:
         card_step(bundle_step(run_dir, metrics, args.history), metrics)
