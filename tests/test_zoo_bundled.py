@@ -67,6 +67,16 @@ def test_the_bundled_checkpoint_covers_exactly_every_builtin_robot_as_source_and
     assert _train_base().sampler_text(meta["run"]["sampler"]) in card.summary  # the sampler as the checkpoint has it
 
 
+def test_the_card_names_the_network_size_and_where_it_differs_from_the_preset():
+    run = json.loads((bundled_dir() / zoo.DEFAULT_MODEL / "config.json").read_text())["run"]
+    text = _train_base().architecture_text(run)
+    assert text.startswith(f"the `base` preset (H = 96, 2 layers per decoder, feed-forward {run['model']['ffn']}")
+    wide = dict(run, model=dict(run["model"], ffn=768))
+    assert "feed-forward 768 (the preset: feed-forward 256)" in _train_base().architecture_text(wide)
+    same = dict(run, model=dict(run["model"], ffn=256))
+    assert "the preset:" not in _train_base().architecture_text(same)
+
+
 def test_the_bundled_card_is_rendered_from_the_checkpoint_metadata():
     card = zoo.model_info(zoo.DEFAULT_MODEL).card
     folder = bundled_dir() / zoo.DEFAULT_MODEL

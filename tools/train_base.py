@@ -247,21 +247,38 @@ def _verdict(metrics: dict[str, Any]) -> str:
             "for real use take `--refine 5` or `--method optimize`; the model alone is not yet accurate (issue 11).")
 
 
+def architecture_text(run: dict[str, Any]) -> str:
+    """'the `base` preset (H = 96, 2 layers per decoder, feed-forward 256, 1 Euler step = ...)' for a checkpoint's
+    ``run`` section, saying where its network differs from the preset's."""
+    from mer_data.errors import ConfigError
+    from mer_models.config import preset
+
+    model, name = run["model"], run["name"]
+    try:
+        ref = dataclasses.asdict(preset(name).model)
+    except ConfigError:
+        ref = model
+    size = f"H = {model['hidden']}, {model['layers']} layers per decoder, feed-forward {model['ffn']}"
+    labels = {"hidden": "H", "layers": "layers", "ffn": "feed-forward", "heads": "heads"}
+    changed = [f"{labels[k]} {ref[k]}" for k in labels if model.get(k) != ref.get(k)]
+    return (f"the `{name}` preset ({size}{' (the preset: ' + ', '.join(changed) + ')' if changed else ''}, "
+            f"{sampler_text(run['sampler'])})")
+
+
 def card_step(folder: Path, metrics: dict[str, Any] | None) -> Path:
     """Render ``cards/models/mer-base.md`` and its packaged copy from the bundled checkpoint ``folder``."""
     from mer_models.zoo.fromckpt import DATASETS, card_from_checkpoint
     from mer_models.zoo.registry import source_cards_dir, write_card
 
     meta = json.loads((folder / "config.json").read_text())
-    step, model = int(meta["step"]), meta["run"]["model"]
+    step = int(meta["step"])
     evaluated = ("Its accuracy on LAFAN1 motion (G1 and H1 as sources; never seen in training) is in this card's metrics "
                  "(`evaluation (mer evaluate)`): the model alone, the model + "
                  f"{EVAL['refine']} optimiser iterations, and the optimiser on the same windows. {_verdict(metrics)}"
                  if metrics else "It has not been evaluated on LAFAN1 yet: its metrics hold the training losses only.")
     summary = (f"mer's default model, bundled with the package: `mer retarget` without `--model` and `mer demo` use it, "
                "offline. Trained only on synthetic motion generated in code (no third-party motion data), with every "
-               f"built-in robot ({', '.join(ROBOTS)}) as source (reference) and as target; the `{meta['run']['name']}` preset "
-               f"(H = {model['hidden']}, {model['layers']} layers per decoder, {sampler_text(meta['run']['sampler'])}), "
+               f"built-in robot ({', '.join(ROBOTS)}) as source (reference) and as target; {architecture_text(meta['run'])}, "
                f"trained for {step} steps{' (' + meta['data']['history'] + ')' if meta.get('data', {}).get('history') else ''}; the teacher is "
                f"the optimiser (`mer shards solve`). {evaluated}")
     note = DATASETS["synthetic"].note
