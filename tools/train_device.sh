@@ -2,7 +2,7 @@
 # Train mer-base (or the paper configuration) on one accelerator in about 9 minutes; results in $OUT.
 #
 #   OUT=/path/to/out tools/train_device.sh [--config base|paper] [--minutes M] [--eval-input DIR] [--ref-group K]
-#       [--init DIR] [--batch-size B] [--lr LR] [--warmup N] [--lr-decay-steps N] [--lr-min-ratio R]
+#       [--init DIR] [--batch-size B] [--lr LR] [--warmup N] [--lr-decay-steps N] [--lr-min-ratio R] [--ffn F]
 #   OUT=/tmp/x tools/train_device.sh --dry-run [--init mer_models/bundled/mer-base]   # CPU, 2 training steps (tests/test_train_device.py)
 #
 # --init continues from a checkpoint's weights (fresh optimiser), e.g. the bundled mer-base, instead of
@@ -30,7 +30,7 @@ while [ $# -gt 0 ]; do
     --ref-group) GROUP=(--ref-group "$2"); shift 2 ;;  # samples per window in a batch (TrainConfig.ref_group)
     --init) TRAIN+=(--init "$2"); shift 2 ;;
     --batch-size) BATCH=(--batch-size "$2"); shift 2 ;;
-    --lr|--warmup|--lr-decay-steps|--lr-min-ratio) TRAIN+=("$1" "$2"); shift 2 ;;
+    --lr|--warmup|--lr-decay-steps|--lr-min-ratio|--ffn) TRAIN+=("$1" "$2"); shift 2 ;;  # --ffn: a wider feed-forward (with --init: widened)
     *) echo "unknown option $1 (see the header of $0)" >&2; exit 2 ;;
   esac
 done
