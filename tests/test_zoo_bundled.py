@@ -39,7 +39,7 @@ def test_the_default_model_is_mer_base_bundled_and_described_by_its_card():
     assert entry.source == "built-in" and card.status == "bundled" and zoo.where(entry) == "bundled"
     folder = bundled_dir() / name
     assert sorted(p.name for p in folder.iterdir()) == ["config.json", "model.safetensors"]  # no optimiser state
-    assert (folder / "model.safetensors").stat().st_size < 4_000_000  # the base preset in float32: ~3 MB
+    assert (folder / "model.safetensors").stat().st_size < 6_000_000  # base with a feed-forward of 768, float32: ~4.6 MB
     # trained on synthetic motion only: a permissive licence, said plainly
     assert card.license == "apache-2.0" and card.training["dataset"] == "synthetic" and card.checkpoint["config"] == "base"
     assert "synthetic motion" in card.summary and "default" in card.summary and "teacher is the optimiser" in card.summary

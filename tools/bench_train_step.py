@@ -57,6 +57,11 @@ def main() -> int:
     ds = ShardDataset(args.shards, teacher=True)
     base = preset(args.config)
     init = Path(args.init) / "model.safetensors" if args.init else None
+    if init is not None:  # the checkpoint's feed-forward width (the bundled mer-base: 768, not the preset's 256)
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        from overfit_probe import ffn_width
+
+        base = base.replace(model=dataclasses.replace(base.model, ffn=ffn_width(init) or base.model.ffn))
     times: dict[int, list[float]] = {k: [] for k in args.groups}
     groups = [1] + [k for k in args.groups if k != 1]
     for r in range(args.rounds):

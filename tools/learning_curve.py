@@ -50,6 +50,14 @@ def held_out(ckpt_dir: Path, eval_input: str, source: str, targets: list[str], w
     return out
 
 
+def ffn_width(weights: Path) -> int | None:
+    """The feed-forward width of a ``model.safetensors`` (``overfit_probe.ffn_width``)."""
+    sys.path.insert(0, str(REPO / "tools"))
+    from overfit_probe import ffn_width as width
+
+    return width(weights)
+
+
 def widened_init(init: Path, ffn: int, dest: Path) -> Path:
     """``init``'s weights with every feed-forward widened to ``ffn`` (the same function;
     ``overfit_probe.widen_ffn``), written to ``dest``; ``init`` itself when already that wide."""
@@ -58,10 +66,9 @@ def widened_init(init: Path, ffn: int, dest: Path) -> Path:
     sys.path.insert(0, str(REPO / "tools"))
     from overfit_probe import widen_ffn
 
-    state = load_file(str(init))
-    widths = {w.shape[0] for k, w in state.items() if k.endswith(".ffn.0.weight")}
-    if widths == {ffn}:
+    if ffn_width(init) == ffn:
         return init
+    state = load_file(str(init))
     dest.parent.mkdir(parents=True, exist_ok=True)
     tmp = dest.with_name(dest.name + ".tmp")
     save_file(widen_ffn(state, ffn), str(tmp))
@@ -98,8 +105,9 @@ def run_curve(cfg_name: str, args, out: Path, minutes: float) -> list[dict]:
         run = run.replace(sampler=dataclasses.replace(run.sampler, feedback_sigma=args.feedback_sigma))
     if args.norm_first:
         run = run.replace(model=dataclasses.replace(run.model, norm_first=True))
-    if args.ffn is not None:
-        run = run.replace(model=dataclasses.replace(run.model, ffn=args.ffn))
+    ffn = args.ffn if args.ffn is not None else (ffn_width(Path(args.init) / "model.safetensors") if args.init else None)
+    if ffn is not None and ffn != run.model.ffn:  # --ffn, or --init's own width (the bundled mer-base: 768)
+        run = run.replace(model=dataclasses.replace(run.model, ffn=ffn))
     if args.ref_group:
         run = run.replace(train=dataclasses.replace(run.train, ref_group=args.ref_group))
     run = run.replace(train=dataclasses.replace(run.train, save_every=args.chunk_steps, log_every=min(10, args.chunk_steps)))
@@ -155,7 +163,7 @@ def main() -> int:
     ap.add_argument("--init", metavar="DIR", help="start from this checkpoint's weights (fresh optimiser), e.g. the bundled "
                     "mer-base, to continue training in a session that lacks the run folder")
     ap.add_argument("--ffn", type=int, help="feed-forward width instead of the preset's; with --init, the checkpoint "
-                    "widened to it function-preservingly (tools/overfit_probe.py widen_ffn)")
+                    "widened to it function-preservingly (tools/overfit_probe.py widen_ffn); default with --init: its width")
     ap.add_argument("--norm-first", action="store_true", help="pre-norm layers (ModelConfig.norm_first) instead of the preset's post-norm")
     ap.add_argument("--ref-group", type=int, help="samples per reference window in a batch (TrainConfig.ref_group)")
     ap.add_argument("--bf16", action="store_true", help="bfloat16 autocast (GPUs; CPUs with AMX or AVX512-BF16 only)")

@@ -24,6 +24,7 @@ import time
 from pathlib import Path
 
 import torch
+from safetensors import safe_open
 from torch.utils.data import Subset
 
 from mer_data.registry import get_skeleton
@@ -81,6 +82,15 @@ def where_the_error_sits(model_dir: str | Path, batch, keypoints) -> dict[str, f
         "model_angles_teacher_base": g_mpbpe({"q": mine["q"], "base_pos": taught["base_pos"],
                                               "base_rot": taught["base_rot"]}, batch, keypoints),  # fmt: skip
     }
+
+
+def ffn_width(weights: Path) -> int | None:
+    """The feed-forward width of a ``model.safetensors`` (None: no feed-forward layers)."""
+    with safe_open(str(weights), "pt") as f:
+        widths = {f.get_slice(k).get_shape()[0] for k in f.keys() if k.endswith(".ffn.0.weight")}
+    if len(widths) > 1:
+        raise SystemExit(f"{weights}: feed-forward layers of different widths {sorted(widths)}")
+    return widths.pop() if widths else None
 
 
 def widen_ffn(state: dict[str, torch.Tensor], ffn: int, seed: int = 0) -> dict[str, torch.Tensor]:
@@ -160,6 +170,8 @@ def main() -> None:
     for key in ("layers", "hidden", "ffn"):
         if getattr(args, key) is not None:
             run = run.replace(model=dataclasses.replace(run.model, **{key: getattr(args, key)}))
+    if args.init and args.ffn is None:  # the checkpoint's own width (the bundled mer-base: 768)
+        run = run.replace(model=dataclasses.replace(run.model, ffn=ffn_width(Path(args.init) / "model.safetensors") or run.model.ffn))
     if args.lam is not None:
         run = run.replace(energy=dataclasses.replace(run.energy, lam=args.lam))
     out = Path(args.out)
