@@ -16,7 +16,7 @@ from mer_models.model import RetargetModel
 from model_helpers import MICRO, mixed_batch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
-from overfit_probe import widen_ffn  # noqa: E402
+from overfit_probe import ffn_width, widen_ffn  # noqa: E402
 
 
 def test_a_wider_feed_forward_computes_the_same_function_and_can_learn():
@@ -43,7 +43,7 @@ def test_a_wider_feed_forward_computes_the_same_function_and_can_learn():
 
 
 def test_a_learning_curve_starts_a_wider_run_from_the_widened_checkpoint(tmp_path):
-    from learning_curve import ffn_width, widened_init
+    from learning_curve import widened_init
     from safetensors.torch import load_file, save_file
 
     init = tmp_path / "init" / "model.safetensors"
@@ -54,5 +54,5 @@ def test_a_learning_curve_starts_a_wider_run_from_the_widened_checkpoint(tmp_pat
     assert widened_init(init, 2 * MICRO.ffn, dest) == dest
     wide = RetargetModel(dataclasses.replace(MICRO, ffn=2 * MICRO.ffn))
     wide.load_state_dict(load_file(str(dest)))  # strict: the shapes of the wider network
-    assert not dest.with_name(dest.name + ".tmp").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["init", "run.widened.safetensors"]  # no temporary file left
     assert (ffn_width(init), ffn_width(dest)) == (MICRO.ffn, 2 * MICRO.ffn)  # what --init without --ffn trains at

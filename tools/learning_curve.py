@@ -27,6 +27,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "tools"))  # overfit_probe: ffn_width, widen_ffn
 
 log = logging.getLogger("learning_curve")
 
@@ -50,29 +51,18 @@ def held_out(ckpt_dir: Path, eval_input: str, source: str, targets: list[str], w
     return out
 
 
-def ffn_width(weights: Path) -> int | None:
-    """The feed-forward width of a ``model.safetensors`` (``overfit_probe.ffn_width``)."""
-    sys.path.insert(0, str(REPO / "tools"))
-    from overfit_probe import ffn_width as width
-
-    return width(weights)
-
-
 def widened_init(init: Path, ffn: int, dest: Path) -> Path:
     """``init``'s weights with every feed-forward widened to ``ffn`` (the same function;
     ``overfit_probe.widen_ffn``), written to ``dest``; ``init`` itself when already that wide."""
-    from safetensors.torch import load_file, save_file
+    from overfit_probe import ffn_width, widen_ffn
+    from safetensors.torch import load_file, save
 
-    sys.path.insert(0, str(REPO / "tools"))
-    from overfit_probe import widen_ffn
+    from mer_data.atomic import atomic_write
 
     if ffn_width(init) == ffn:
         return init
-    state = load_file(str(init))
     dest.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dest.with_name(dest.name + ".tmp")
-    save_file(widen_ffn(state, ffn), str(tmp))
-    tmp.replace(dest)
+    atomic_write(dest, save(widen_ffn(load_file(str(init)), ffn)))
     log.info("%s widened to a feed-forward of %d: %s", init, ffn, dest)
     return dest
 
@@ -105,6 +95,8 @@ def run_curve(cfg_name: str, args, out: Path, minutes: float) -> list[dict]:
         run = run.replace(sampler=dataclasses.replace(run.sampler, feedback_sigma=args.feedback_sigma))
     if args.norm_first:
         run = run.replace(model=dataclasses.replace(run.model, norm_first=True))
+    from overfit_probe import ffn_width
+
     ffn = args.ffn if args.ffn is not None else (ffn_width(Path(args.init) / "model.safetensors") if args.init else None)
     if ffn is not None and ffn != run.model.ffn:  # --ffn, or --init's own width (the bundled mer-base: 768)
         run = run.replace(model=dataclasses.replace(run.model, ffn=ffn))
