@@ -6,8 +6,9 @@ Layout (format version :data:`FORMAT_VERSION`)::
       config.json            format, format_version, mer_version, run (model/energy/sampler/train
                              configuration), robots (targets and references seen, with skeleton
                              fingerprints), data (shards, split, sample count), metrics, step
-      model.safetensors      the weights
-      optimizer.safetensors  optimiser moments and RNG states (only for resuming)
+      model.safetensors      the weights (with ``TrainConfig.ema``: their moving average)
+      optimizer.safetensors  optimiser moments and RNG states (only for resuming; with
+                             ``TrainConfig.ema`` also the trained weights, ``train.<name>``)
       trainer_state.json     step, epoch, position in the epoch, optimiser hyper-parameters
 
 Weights load only through safetensors, strictly: every key of the model must be present with its
@@ -56,6 +57,7 @@ __all__ = [
 FORMAT = "mer-checkpoint"
 FORMAT_VERSION = 1
 CONFIG, WEIGHTS, OPTIMIZER, STATE = "config.json", "model.safetensors", "optimizer.safetensors", "trainer_state.json"
+TRAINED_PREFIX = "train."  # the trained weights in the optimiser file of a checkpoint whose weights are an average
 
 
 @dataclass
@@ -101,11 +103,14 @@ def save_checkpoint(
     trainer_state: Mapping[str, Any] | None = None,
     rng_tensors: Mapping[str, torch.Tensor] | None = None,
     extra_files: Mapping[str, str] | None = None,
+    averaged: Mapping[str, torch.Tensor] | None = None,
 ) -> Path:
     """Write a checkpoint folder atomically (see module docstring). Returns its path.
 
     ``extra_files`` maps file names to text written into the same folder (e.g. the training log),
-    so they appear together with the weights or not at all."""
+    so they appear together with the weights or not at all. ``averaged``: a moving average of the
+    model's state dict (``TrainConfig.ema``); the weights file then holds it (what inference loads)
+    and the optimiser file the model's own weights as ``train.<name>`` (what resume continues)."""
     meta = {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
@@ -117,8 +122,14 @@ def save_checkpoint(
         "metrics": dict(metrics or {}),
         "step": int(step),
     }
-    weights = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
-    require_finite(weights, path=path, what="model weights")  # a diverged run is refused, not saved
+    trained = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
+    require_finite(trained, path=path, what="model weights")  # a diverged run is refused, not saved
+    weights = trained
+    if averaged is not None:
+        if set(averaged) != set(trained):
+            raise ValueError("the averaged weights do not have the model's tensors")
+        weights = {k: v.detach().cpu().contiguous() for k, v in averaged.items()}
+        require_finite(weights, path=path, what="averaged model weights")
 
     def write(tmp: Path) -> None:
         (tmp / CONFIG).write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
@@ -127,6 +138,8 @@ def save_checkpoint(
             tensors, groups = _optimizer_tensors(optimizer)
             for k, v in (rng_tensors or {}).items():
                 tensors[f"rng.{k}"] = v.detach().cpu().contiguous()
+            if averaged is not None:
+                tensors.update({f"{TRAINED_PREFIX}{k}": v for k, v in trained.items()})
             save_file(tensors, str(tmp / OPTIMIZER))
             (tmp / STATE).write_text(json.dumps({**groups, **dict(trainer_state or {})}, indent=2, sort_keys=True) + "\n")
         for fname, text in (extra_files or {}).items():

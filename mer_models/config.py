@@ -246,6 +246,11 @@ class TrainConfig:
             Needs a dataset that knows its windows (:class:`mer_data.shards.ShardDataset`).
         opt_iters: refinement iterations of the optimisation baseline when it supplies ``x`` for a
             target without motion data (see docs/model.md).
+        ema: decay of an exponential moving average of the weights (0: none). Each step
+            ``avg <- d avg + (1 - d) theta`` with ``d = min(ema, (1 + step) / (10 + step))``; a
+            checkpoint's ``model.safetensors`` then holds the average (what inference loads) and the
+            optimiser file the trained weights (what resume continues). Off in every preset:
+            docs/model.md §Training says what it was measured to give.
         seed: seeds noise, data order and initialisation.
         log_every, save_every: in steps.
     """
@@ -263,6 +268,7 @@ class TrainConfig:
     feedback_frac: float = 0.0
     ref_group: int = 1
     opt_iters: int = 20
+    ema: float = 0.0
     seed: int = 0
     log_every: int = 10
     save_every: int = 500
@@ -279,6 +285,7 @@ class TrainConfig:
         _check(isinstance(self.warmup, int) and self.warmup >= 0, c, "warmup", "must be an integer >= 0")
         _check(isinstance(self.lr_decay_steps, int) and self.lr_decay_steps >= 0, c, "lr_decay_steps", "must be an integer >= 0")
         _check(0.0 <= self.lr_min_ratio <= 1.0, c, "lr_min_ratio", "must be in [0, 1]")
+        _check(0.0 <= self.ema < 1.0, c, "ema", f"ema={self.ema} must be in [0, 1) (0: no average; e.g. 0.999)")
         _check(isinstance(self.opt_iters, int) and self.opt_iters >= 0, c, "opt_iters", "must be an integer >= 0")
         _check(isinstance(self.ref_group, int) and self.ref_group >= 1, c, "ref_group", "must be an integer >= 1")
         _check(self.batch_size % self.ref_group == 0, c, "ref_group",
@@ -332,7 +339,7 @@ def preset(name: str) -> RunConfig:
 _SECTIONS = {"model": ModelConfig, "energy": EnergyConfig, "sampler": SamplerConfig, "train": TrainConfig}
 #: Fields added after checkpoints were first written, with the value that reproduces the older
 #: behaviour: a checkpoint without them loads with that value (and nothing else may be missing).
-_LEGACY = {ModelConfig: {"goal_input": False, "goal_prior": False, "norm_first": False}, EnergyConfig: {"w_ori": 0.0}, SamplerConfig: {"method": "heun", "init_noise": 1.0, "feedback_sigma": 0.3}, TrainConfig: {"lr_decay_steps": 0, "lr_min_ratio": 0.1, "start_frac": 0.0, "feedback_frac": 0.0, "ref_group": 1}}
+_LEGACY = {ModelConfig: {"goal_input": False, "goal_prior": False, "norm_first": False}, EnergyConfig: {"w_ori": 0.0}, SamplerConfig: {"method": "heun", "init_noise": 1.0, "feedback_sigma": 0.3}, TrainConfig: {"lr_decay_steps": 0, "lr_min_ratio": 0.1, "start_frac": 0.0, "feedback_frac": 0.0, "ref_group": 1, "ema": 0.0}}
 
 
 def _section(cls, data: Any, where: str):

@@ -40,7 +40,7 @@ from mer_data.registry import get_skeleton
 from mer_data.rotations import axis_angle_to_matrix
 from mer_data.samples import collate
 
-from .checkpoint import CONFIG, OPTIMIZER, STATE, WEIGHTS, _read_meta, load_weights, save_checkpoint
+from .checkpoint import CONFIG, OPTIMIZER, STATE, TRAINED_PREFIX, WEIGHTS, _read_meta, load_weights, save_checkpoint
 from .config import RunConfig, from_dict
 from .edm import denoising_loss, sample_sigma
 from .kinematics import batch_features
@@ -51,7 +51,7 @@ from .representation import normalize, transform_features
 
 log = logging.getLogger(__name__)
 
-__all__ = ["train", "TrainResult", "clean_samples", "native_bf16", "reference_groups", "LOG_FILE"]
+__all__ = ["train", "TrainResult", "clean_samples", "native_bf16", "reference_groups", "ema_decay", "update_average", "LOG_FILE"]
 
 LOG_FILE = "train_log.jsonl"
 
@@ -300,7 +300,34 @@ def _resume_state(out: Path, run: RunConfig, model: RetargetModel, opt: torch.op
     except (ValueError, KeyError) as exc:
         raise CheckpointError(f"the optimiser state does not match the model: {exc}", path=out / OPTIMIZER) from None
     rng = {k[4:]: v for k, v in tensors.items() if k.startswith("rng.")}
-    return meta, state, rng
+    averaged = None
+    if run.train.ema > 0:  # the weights file holds the average; the trained weights are in the optimiser file
+        trained = {k[len(TRAINED_PREFIX):]: v for k, v in tensors.items() if k.startswith(TRAINED_PREFIX)}
+        averaged = {k: v.detach().clone() for k, v in model.state_dict().items()}
+        try:
+            model.load_state_dict(trained, strict=True)
+        except RuntimeError as exc:
+            raise CheckpointError(f"the checkpoint's trained weights (next to its average) do not match the model: {exc}",
+                                  path=out / OPTIMIZER, fix="train into a new --out folder") from None
+    return meta, state, rng, averaged
+
+
+def ema_decay(ema: float, step: int) -> float:
+    """The moving average's decay after ``step`` optimiser steps: ``min(ema, (1 + step) / (10 + step))``
+    (short memory early on, so the average does not hold the initial weights for long)."""
+    return min(ema, (1 + step) / (10 + step))
+
+
+@torch.no_grad()
+def update_average(averaged: Mapping[str, torch.Tensor], model: nn.Module, decay: float) -> None:
+    """``avg <- decay * avg + (1 - decay) * theta`` for every floating tensor of the state dict
+    (others, e.g. integer buffers, are copied)."""
+    for k, v in model.state_dict().items():
+        a = averaged[k]
+        if a.is_floating_point():
+            a.lerp_(v.detach(), 1.0 - decay)
+        else:
+            a.copy_(v)
 
 
 def train(
@@ -346,21 +373,23 @@ def train(
     opt = torch.optim.AdamW(model.parameters(), lr=run.train.lr, weight_decay=run.train.weight_decay)
     noise_gen = torch.Generator(device=dev).manual_seed(run.train.seed * 1000 + rank)
     step = 0
+    averaged: dict[str, torch.Tensor] | None = None
     robots: dict[str, dict[str, str]] = {"targets": {}, "references": {}}
     for side, names in (known_robots or {}).items():
         robots.setdefault(side, {}).update(dict(names))
     if resume:
         if not (out / CONFIG).is_file():
             raise CheckpointError(f"nothing to resume in {out}", path=out, fix="drop --resume to start a new run")
-        meta, state, rng = _resume_state(out, run, model, opt, rank, world)
+        meta, state, rng, averaged = _resume_state(out, run, model, opt, rank, world)
         step = int(state["step"])
         robots = {k: dict(v) for k, v in meta["robots"].items()}
         noise_gen.set_state(rng[f"noise.{rank}"])
-        torch.set_rng_state(rng[f"torch.{rank}"])
     elif (out / CONFIG).exists():
         raise CheckpointError(f"{out} already holds a checkpoint", path=out, fix="pass --resume to continue it, or choose another --out")
     elif init is not None:
         load_weights(model, Path(init))
+    if run.train.ema > 0 and averaged is None:
+        averaged = {k: v.detach().clone() for k, v in model.state_dict().items()}
     net: nn.Module = _Step(model)
     if world > 1:
         net = nn.parallel.DistributedDataParallel(net)
@@ -369,6 +398,8 @@ def train(
     sampler = _OrderSampler(len(dataset), run.train.batch_size, run.train.seed, step, rank, world, groups, k_ref)
     start_step = step
     loader = iter(DataLoader(dataset, batch_sampler=sampler, collate_fn=collate, num_workers=num_workers))
+    if resume:  # after the loader's iterator, which draws its base seed from this generator at every start
+        torch.set_rng_state(rng[f"torch.{rank}"])
     logf = out / LOG_FILE
     last: dict[str, float] = {}
     t0 = time.time()
@@ -385,7 +416,7 @@ def train(
         save_checkpoint(
             out, model, run, robots=robots, data=data_info, metrics={"train": last}, step=step, optimizer=opt,
             trainer_state={"step": step, "epoch": step // sampler.per_epoch, "world_size": world},
-            rng_tensors=rngs, extra_files={LOG_FILE: log_text},
+            rng_tensors=rngs, extra_files={LOG_FILE: log_text}, averaged=averaged,
         )
 
     model.train()
@@ -422,6 +453,8 @@ def train(
         gnorm = torch.nn.utils.clip_grad_norm_(model.parameters(), run.train.grad_clip)
         opt.step()
         step += 1
+        if averaged is not None:
+            update_average(averaged, model, ema_decay(run.train.ema, step))
         last = {"step": step, "loss": loss.item(), "edm": l_edm.mean().item(), "grad_norm": gnorm.item(), "lr": opt.param_groups[0]["lr"]}
         last.update({f"f_{k}": v.mean().item() for k, v in energy.items()})
         if world > 1:

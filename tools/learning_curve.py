@@ -36,13 +36,25 @@ def _curve(path: Path) -> list[dict]:
     return [json.loads(x) for x in path.read_text().splitlines()] if path.is_file() else []
 
 
-def held_out(ckpt_dir: Path, eval_input: str, source: str, targets: list[str], windows: int, steps: int | None) -> dict:
-    """Mean g-mpbpe [m] (and limit violations) per target of the model alone on held-out windows."""
+def held_out(ckpt_dir: Path, eval_input: str, source: str, targets: list[str], windows: int, steps: int | None,
+             trained: bool = False) -> dict:
+    """Mean g-mpbpe [m] (and limit violations) per target of the model alone on held-out windows.
+
+    ``trained``: for a checkpoint with a moving average (``TrainConfig.ema``), score the trained
+    weights instead of the average its weights file holds."""
     from mer_models.checkpoint import load_checkpoint
     from mer_models.evaluate import EvalOptions, evaluate
 
     opts = EvalOptions(split="all", max_windows=windows, methods=("model",), steps=steps, batch_size=16)
-    rep = evaluate(eval_input, source, targets, checkpoint=load_checkpoint(ckpt_dir), opts=opts)
+    ckpt = load_checkpoint(ckpt_dir)
+    if trained:
+        from safetensors.torch import load_file
+
+        from mer_models.checkpoint import OPTIMIZER, TRAINED_PREFIX
+
+        own = {k[len(TRAINED_PREFIX):]: v for k, v in load_file(str(ckpt_dir / OPTIMIZER)).items() if k.startswith(TRAINED_PREFIX)}
+        ckpt.model.load_state_dict(own, strict=True)
+    rep = evaluate(eval_input, source, targets, checkpoint=ckpt, opts=opts)
     out = {}
     for r in rep["rows"]:
         m = r["metrics"]
@@ -102,6 +114,8 @@ def run_curve(cfg_name: str, args, out: Path, minutes: float) -> list[dict]:
         run = run.replace(model=dataclasses.replace(run.model, ffn=ffn))
     if args.ref_group:
         run = run.replace(train=dataclasses.replace(run.train, ref_group=args.ref_group))
+    if args.ema is not None:
+        run = run.replace(train=dataclasses.replace(run.train, ema=args.ema))
     run = run.replace(train=dataclasses.replace(run.train, save_every=args.chunk_steps, log_every=min(10, args.chunk_steps)))
     ds = ShardDataset(args.shards, teacher=True)
     curve_path = out.parent / f"{out.name}.learning_curve.jsonl"  # beside the folder: a checkpoint save replaces the folder
@@ -127,6 +141,10 @@ def run_curve(cfg_name: str, args, out: Path, minutes: float) -> list[dict]:
         if args.eval_input:
             rec["held_out"] = held_out(out, args.eval_input, args.eval_source, args.eval_targets, args.eval_windows, args.eval_steps)
             rec["g_mpbpe_mean"] = sum(v["g_mpbpe"] for v in rec["held_out"].values()) / len(rec["held_out"])
+            if run.train.ema > 0:  # the curve scores the average; the trained weights beside it
+                rec["held_out_trained"] = held_out(out, args.eval_input, args.eval_source, args.eval_targets, args.eval_windows,
+                                                   args.eval_steps, trained=True)  # fmt: skip
+                rec["g_mpbpe_mean_trained"] = sum(v["g_mpbpe"] for v in rec["held_out_trained"].values()) / len(rec["held_out_trained"])
         with open(curve_path, "a") as fh:
             fh.write(json.dumps(rec) + "\n")
         print(json.dumps(rec), flush=True)
@@ -158,6 +176,8 @@ def main() -> int:
                     "widened to it function-preservingly (tools/overfit_probe.py widen_ffn); default with --init: its width")
     ap.add_argument("--norm-first", action="store_true", help="pre-norm layers (ModelConfig.norm_first) instead of the preset's post-norm")
     ap.add_argument("--ref-group", type=int, help="samples per reference window in a batch (TrainConfig.ref_group)")
+    ap.add_argument("--ema", type=float, metavar="DECAY", help="moving average of the weights (TrainConfig.ema, e.g. 0.999): "
+                    "the checkpoint and the curve hold the average, the curve also scores the trained weights")
     ap.add_argument("--bf16", action="store_true", help="bfloat16 autocast (GPUs; CPUs with AMX or AVX512-BF16 only)")
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--clock", choices=["cpu", "wall"], default="cpu",

@@ -32,6 +32,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=int, default=0, help="DataLoader worker processes")
     p.add_argument("--ref-group", type=int, help="samples per reference window in a batch, sharing one reference "
                    "encoding (--shards only; default: the preset's, 1; docs/model.md)")
+    p.add_argument("--ema", type=float, metavar="DECAY", help="keep a moving average of the weights with this decay "
+                   "(e.g. 0.999) and write it as the checkpoint's weights (default: the preset's, none; docs/model.md)")
     p.set_defaults(func=cmd_train)
 
 
@@ -52,7 +54,7 @@ def cmd_train(args) -> int:
     run = preset(args.config)
     over = {k: v for k, v in {"batch_size": args.batch_size, "lr": args.lr, "seed": args.seed,
                                "save_every": args.save_every, "log_every": args.log_every,
-                               "ref_group": args.ref_group}.items() if v is not None}  # fmt: skip
+                               "ref_group": args.ref_group, "ema": args.ema}.items() if v is not None}  # fmt: skip
     if over:
         run = run.replace(train=dataclasses.replace(run.train, **over))
     if args.steps < 1:
