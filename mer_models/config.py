@@ -249,8 +249,8 @@ class TrainConfig:
         ema: decay of an exponential moving average of the weights (0: none). Each step
             ``avg <- d avg + (1 - d) theta`` with ``d = min(ema, (1 + step) / (10 + step))``; a
             checkpoint's ``model.safetensors`` then holds the average (what inference loads) and the
-            optimiser file the trained weights (what resume continues). Off in every preset:
-            docs/model.md §Training says what it was measured to give.
+            optimiser file the trained weights (what resume continues). Off in every preset: not yet
+            measured on ``mer-base`` (docs/model.md §Training).
         seed: seeds noise, data order and initialisation.
         log_every, save_every: in steps.
     """
