@@ -70,3 +70,20 @@ def micro_checkpoint(tmp_path_factory):
     torch.manual_seed(0)
     train(micro_run(), dataset(), out, steps=3)
     return out
+
+
+def assert_resume_exact(run: RunConfig, tmp_path, steps: int = 4) -> None:
+    """``steps`` steps in one run and in two halves, the second resumed, write the same weights and
+    the same optimiser file (moments, RNG states and, with a moving average, the trained weights)
+    bit for bit; the runs go to ``tmp_path / "a"`` and ``tmp_path / "b"``."""
+    from safetensors.torch import load_file
+
+    from mer_models.train import train
+
+    train(run, dataset(), tmp_path / "a", steps=steps)
+    train(run, dataset(), tmp_path / "b", steps=steps // 2)
+    train(run, dataset(), tmp_path / "b", steps=steps, resume=True)
+    for name in ("model.safetensors", "optimizer.safetensors"):
+        a, b = load_file(str(tmp_path / "a" / name)), load_file(str(tmp_path / "b" / name))
+        assert a.keys() == b.keys(), name
+        assert all(torch.equal(a[k], b[k]) for k in a), name

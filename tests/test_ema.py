@@ -17,7 +17,7 @@ from mer_models.checkpoint import TRAINED_PREFIX, load_checkpoint
 from mer_models.config import TrainConfig, from_dict
 from mer_models.train import ema_decay, train, update_average
 
-from model_helpers import dataset, micro_run
+from model_helpers import assert_resume_exact, dataset, micro_run
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -82,14 +82,7 @@ def train_start(run) -> dict[str, torch.Tensor]:
 
 
 def test_resume_with_an_average_is_exact(tmp_path):
-    run = ema_run(0.9)
-    train(run, dataset(), tmp_path / "a", steps=4)
-    train(run, dataset(), tmp_path / "b", steps=2)
-    train(run, dataset(), tmp_path / "b", steps=4, resume=True)
-    for name in ("model.safetensors", "optimizer.safetensors"):
-        a, b = load_file(str(tmp_path / "a" / name)), load_file(str(tmp_path / "b" / name))
-        assert a.keys() == b.keys()
-        assert all(torch.equal(a[k], b[k]) for k in a), name
+    assert_resume_exact(ema_run(0.9), tmp_path)
     assert any(k.startswith(TRAINED_PREFIX) for k in load_file(str(tmp_path / "a" / "optimizer.safetensors")))
 
 

@@ -19,7 +19,7 @@ from mer_models.config import preset
 from mer_models.train import clean_samples, native_bf16, train
 from mer_models.model import RetargetModel
 
-from model_helpers import MICRO, dataset, micro_run, mixed_batch
+from model_helpers import MICRO, assert_resume_exact, dataset, micro_run, mixed_batch
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -34,13 +34,7 @@ def test_training_logs_losses_and_writes_a_checkpoint(tmp_path):
 
 
 def test_resume_is_exact(tmp_path):
-    run = micro_run()
-    train(run, dataset(), tmp_path / "a", steps=4)
-    train(run, dataset(), tmp_path / "b", steps=2)
-    train(run, dataset(), tmp_path / "b", steps=4, resume=True)
-    a, b = load_file(str(tmp_path / "a" / "model.safetensors")), load_file(str(tmp_path / "b" / "model.safetensors"))
-    assert a.keys() == b.keys()
-    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert_resume_exact(micro_run(), tmp_path)
     assert json.loads((tmp_path / "b" / "trainer_state.json").read_text())["step"] == 4
 
 
@@ -48,14 +42,7 @@ def test_resume_is_exact_with_dropout(tmp_path):
     """Dropout draws from the global generator, whose state the checkpoint restores after the data
     loader's iterator has drawn its seed (restored before it, the masks after a resume shifted)."""
     run = micro_run()
-    run = run.replace(model=dataclasses.replace(run.model, dropout=0.2))
-    train(run, dataset(), tmp_path / "a", steps=4)
-    train(run, dataset(), tmp_path / "b", steps=2)
-    train(run, dataset(), tmp_path / "b", steps=4, resume=True)
-    for name in ("model.safetensors", "optimizer.safetensors"):
-        a, b = load_file(str(tmp_path / "a" / name)), load_file(str(tmp_path / "b" / name))
-        assert a.keys() == b.keys()
-        assert all(torch.equal(a[k], b[k]) for k in a), name
+    assert_resume_exact(run.replace(model=dataclasses.replace(run.model, dropout=0.2)), tmp_path)
 
 
 def test_resume_refuses_another_configuration(tmp_path):
