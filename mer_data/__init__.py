@@ -1,7 +1,7 @@
 """mer_data: robot skeleton graphs from URDF, the robot registry, forward kinematics, joint maps,
 and the LAFAN1 training-shard tooling. Depends on no part of :mod:`mer_models`.
 
-The names below are imported lazily (PEP 562), so ``import mer_data.errors`` (or the model zoo's
+The names below are imported lazily (PEP 562), so ``import mer_data.base.errors`` (or the model zoo's
 registry) does not pay for importing torch; ``from mer_data import Skeleton`` works as before.
 """
 
@@ -11,17 +11,17 @@ import importlib
 from typing import Any
 
 _EXPORTS = {
-    "MerError": ".errors",
+    "MerError": ".base.errors",
     "Skeleton": ".skeleton",
     "KEYPOINTS": ".skeleton",
-    "BUILTIN_ROBOTS": ".registry",
-    "get_skeleton": ".registry",
-    "load_robot": ".registry",
-    "list_robots": ".registry",
-    "forward_kinematics": ".fk",
-    "skeleton_tensors": ".fk",
-    "joint_map": ".jointmap",
-    "keypoint_pairs": ".jointmap",
+    "BUILTIN_ROBOTS": ".robots.registry",
+    "get_skeleton": ".robots.registry",
+    "load_robot": ".robots.registry",
+    "list_robots": ".robots.registry",
+    "forward_kinematics": ".kinematics.fk",
+    "skeleton_tensors": ".kinematics.fk",
+    "joint_map": ".kinematics.jointmap",
+    "keypoint_pairs": ".kinematics.jointmap",
 }
 
 __all__ = list(_EXPORTS)

@@ -234,6 +234,15 @@ class Skeleton:
             out.append(int(self.parents[out[-1]]))
         return out
 
+    def rigidly_attached(self, a: int, b: int) -> bool:
+        """True if node ``b`` hangs off node ``a`` through fixed nodes only (no joint turns between them)."""
+        n = b
+        while n != a and n > 0:
+            if self.node_kinds[n] == "revolute":
+                return False
+            n = int(self.parents[n])
+        return n == a
+
     def subtree(self, j: int) -> np.ndarray:
         """(J,) True for ``j`` and every node below it."""
         inside = np.zeros(self.num_nodes, bool)

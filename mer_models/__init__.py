@@ -3,7 +3,7 @@
 Imports :mod:`mer_data` (skeletons, FK, shards); never the reverse.
 
 ``from mer_models import RetargetModel`` gives the model class, with ``from_pretrained``,
-``save_pretrained`` and ``push_to_hub`` (:mod:`mer_models.pretrained`); imported on first use, so
+``save_pretrained`` and ``push_to_hub`` (:mod:`mer_models.hub.pretrained`); imported on first use, so
 ``import mer_models`` stays light.
 """
 
@@ -16,7 +16,7 @@ __all__ = ["RetargetModel", "__version__"]
 
 def __getattr__(name: str) -> Any:
     if name == "RetargetModel":
-        from .model import RetargetModel
+        from mer_models.diffusion.model import RetargetModel
 
         return RetargetModel
     raise AttributeError(f"module 'mer_models' has no attribute {name!r}")

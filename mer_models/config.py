@@ -22,8 +22,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
-from mer_data.errors import ConfigError
-from mer_data.limits import limit, too_big
+from mer_data.base.errors import ConfigError
+from mer_data.base.limits import limit, too_big
 
 __all__ = [
     "ModelConfig",
@@ -70,13 +70,13 @@ class ModelConfig:
         pos_scale: [m] positions are divided by this in the diffusion space.
         vel_scale: [m/s] velocities are divided by this in the diffusion space.
         goal_input: give every target token its scaled-reference goal (position, position relative to
-            the base goal, velocity, orientation, each with a flag; :data:`mer_models.model.GOAL_DIM`
+            the base goal, velocity, orientation, each with a flag; :data:`mer_models.diffusion.model.GOAL_DIM`
             channels) through its own encoder, added to the token: the network then learns the
             target's inverse kinematics from goals it is told, instead of also learning the scaling
             from the reference tokens (docs/model.md). Checkpoints written before it existed load
             with ``False``.
         goal_prior: denoise around the goals (residual diffusion): ``D = P + precond(x - P)`` where
-            ``P`` (:meth:`mer_models.model.RetargetModel.goal_prior`) holds the base's goal pose and
+            ``P`` (:meth:`mer_models.diffusion.model.RetargetModel.goal_prior`) holds the base's goal pose and
             every node's goal position and velocity (angles 0). At high noise the output starts at
             the goals instead of at zero; at low noise ``D -> x`` as before. Checkpoints written
             before it existed load with ``False``.
@@ -177,7 +177,7 @@ class SamplerConfig:
         steps: Heun steps (network evaluations: ``2 * steps - 1``).
         sigma_min, sigma_max, rho: the Karras noise schedule.
         guidance: step size of test-time energy guidance (0 = off): each denoised estimate moves
-            by ``-guidance * grad f_kin`` (see :mod:`mer_models.sampling`).
+            by ``-guidance * grad f_kin`` (see :mod:`mer_models.diffusion.sampling`).
         overlap: frames in-painted from the previous clip in long-horizon retargeting.
         method: ``heun`` (EDM Alg. 1), ``euler`` (probability-flow ODE, one evaluation per step) or
             ``ancestral``. With few steps Heun's corrector is unstable for an imperfect denoiser: its

@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 import torch
 
-from mer_data.jointmap import joint_map
-from mer_data.registry import get_skeleton
-from mer_data.rotations import quat_to_matrix
-from mer_data.samples import TrainingSample, collate
+from mer_data.kinematics.jointmap import joint_map
+from mer_data.kinematics.rotations import quat_to_matrix
+from mer_data.motion.samples import TrainingSample, collate
+from mer_data.robots.registry import get_skeleton
 from mer_models.config import ModelConfig, RunConfig, preset
-from mer_models.synthetic import SyntheticDataset, _features, _origin_normalize, synthetic_motion
-from mer_models.writers import TargetMotion, write_csv
+from mer_models.export.writers import TargetMotion, write_csv
+from mer_models.training.synthetic import SyntheticDataset, _features, _origin_normalize, synthetic_motion
 
 #: a very small network for unit tests (same architecture, seconds on CPU)
 MICRO = ModelConfig(hidden=24, layers=1, heads=2, cross_heads_per_condition=1, ffn=32, dropout=0.0, frames=60)
@@ -64,7 +64,7 @@ def dataset(targets=("g1", "h1", "tron1"), size=16, seed=0) -> SyntheticDataset:
 @pytest.fixture(scope="session")
 def micro_checkpoint(tmp_path_factory):
     """A micro model trained 3 steps on synthetic G1 → {g1, h1, tron1} windows."""
-    from mer_models.train import train
+    from mer_models.training.train import train
 
     out = tmp_path_factory.mktemp("ckpt") / "micro"
     torch.manual_seed(0)
@@ -78,7 +78,7 @@ def assert_resume_exact(run: RunConfig, tmp_path, steps: int = 4) -> None:
     bit for bit; the runs go to ``tmp_path / "a"`` and ``tmp_path / "b"``."""
     from safetensors.torch import load_file
 
-    from mer_models.train import train
+    from mer_models.training.train import train
 
     train(run, dataset(), tmp_path / "a", steps=steps)
     train(run, dataset(), tmp_path / "b", steps=steps // 2)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mer_data.motion_io import write_lafan1_csv
-from mer_data.synthetic import walking_motion
+from mer_data.motion.lafan1 import write_lafan1_csv
+from mer_data.synthesis.walking import walking_motion
 
 #: clip name -> (seconds, gait phase, turn rate); names follow the LAFAN1 categories so that the
 #: paper split applies (one dance, one fallAndGetUp, one fight for training, the rest held out)

@@ -1,4 +1,4 @@
-"""mer_data.atomic: nothing half-written under the final name; permissions as open()/mkdir give."""
+"""mer_data.base.atomic: nothing half-written under the final name; permissions as open()/mkdir give."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import stat
 
 import pytest
 
-from mer_data.atomic import atomic_dir, atomic_write
+from mer_data.base.atomic import atomic_dir, atomic_write
 
 
 @pytest.fixture

@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mer_data.augment import (
+from mer_data.kinematics.jointmap import END_EFFECTORS, joint_map
+from mer_data.robots.registry import BUILTIN_ROBOTS, get_skeleton
+from mer_data.shards.augment import (
     AugmentConfig,
     augmented_joint_map,
     draw_dropped,
@@ -15,8 +17,6 @@ from mer_data.augment import (
     link_groups,
     mirror_nodes,
 )
-from mer_data.jointmap import END_EFFECTORS, joint_map
-from mer_data.registry import BUILTIN_ROBOTS, get_skeleton
 from mer_data.skeleton import KEYPOINTS
 
 CFG = AugmentConfig()

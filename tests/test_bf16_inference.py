@@ -6,17 +6,16 @@ import json
 
 import numpy as np
 import torch
-
-from mer_data.jointmap import joint_map
-from mer_data.registry import get_skeleton
-from mer_data.samples import TrainingSample, collate
-from mer_models.checkpoint import resolve_model
-from mer_models.cli import main
-from mer_models.inference import sample_conditions
-from mer_models.metrics import summarize, window_metrics
-from mer_models.synthetic import SyntheticDataset
-
 from model_helpers import synthetic_csv
+
+from mer_data.kinematics.jointmap import joint_map
+from mer_data.motion.samples import TrainingSample, collate
+from mer_data.robots.registry import get_skeleton
+from mer_models.cli import main
+from mer_models.retarget.inference import sample_conditions
+from mer_models.retarget.metrics import summarize, window_metrics
+from mer_models.training.synthetic import SyntheticDataset
+from mer_models.zoo.checkpoint import resolve_model
 
 
 def _g_mpbpe(motion, batch, tgt) -> float:

@@ -12,17 +12,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hub_server import FakeHub
 from hypothesis import given
 from hypothesis import strategies as st
-from hub_server import FakeHub
 from model_helpers import micro_checkpoint, synthetic_csv  # noqa: F401 (fixture)
 
-from mer_data.atomic import owner_tag
-from mer_data.errors import MerError
-from mer_data.motion_io import read_lafan1_csv
-from mer_data.registry import get_skeleton
-from mer_models.dataset_retarget import _segments, plan_jobs, retarget_dataset
-from mer_models.retarget import retarget_features, sequence_metrics, source_features
+from mer_data.base.atomic import owner_tag
+from mer_data.base.errors import MerError
+from mer_data.motion.lafan1 import read_lafan1_csv
+from mer_data.robots.registry import get_skeleton
+from mer_models.retarget.clip import retarget_features, sequence_metrics, source_features
+from mer_models.retarget.dataset import _segments, plan_jobs, retarget_dataset
 
 REPO = Path(__file__).resolve().parents[1]
 CLIPS = {"walk1_subject1": 150, "dance1_subject2": 90, "run1_subject2": 40}
@@ -102,8 +102,8 @@ def _env(tmp_path) -> dict:
 def test_the_model_retargets_each_clip_to_all_targets_in_one_pass(dataset, tmp_path, micro_checkpoint):  # noqa: F811
     """``method="diffusion"``: clip by clip, every pending target in one pass, the reference encoded
     once per window; each pair's result is what a one-target ``retarget_features`` call gives."""
-    from mer_models.checkpoint import resolve_model
-    from mer_models.long_horizon import clip_starts
+    from mer_models.retarget.long_horizon import clip_starts
+    from mer_models.zoo.checkpoint import resolve_model
 
     ckpt = resolve_model(str(micro_checkpoint))
     calls: list[int] = []

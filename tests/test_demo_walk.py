@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from mer_data.example_robot import EXAMPLE_ROBOT, example_humanoid_urdf
-from mer_data.registry import get_skeleton, load_robot
-from mer_data.rotations import quat_to_matrix
+from mer_data.kinematics.rotations import quat_to_matrix
+from mer_data.robots.example import EXAMPLE_ROBOT, example_humanoid_urdf
+from mer_data.robots.registry import get_skeleton, load_robot
 from mer_data.skeleton import KEYPOINTS
-from mer_models.demo_walk import RobotResult, format_results, register_example_robot
-from mer_models.retarget import sequence_metrics, source_features
-from mer_models.synthetic import synthetic_motion
-from mer_models.writers import TargetMotion
+from mer_models.cli.demo_walk import RobotResult, format_results, register_example_robot
+from mer_models.export.writers import TargetMotion
+from mer_models.retarget.clip import sequence_metrics, source_features
+from mer_models.training.synthetic import synthetic_motion
 
 
 def test_the_example_robot_registers_with_every_key_point(tmp_path):

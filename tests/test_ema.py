@@ -10,14 +10,14 @@ from pathlib import Path
 
 import pytest
 import torch
+from model_helpers import assert_resume_exact, dataset, micro_run
 from safetensors.torch import load_file
 
-from mer_data.errors import ConfigError
-from mer_models.checkpoint import TRAINED_PREFIX, load_checkpoint
+from mer_data.base.errors import ConfigError
 from mer_models.config import TrainConfig, from_dict
-from mer_models.train import ema_decay, train, update_average
-
-from model_helpers import assert_resume_exact, dataset, micro_run
+from mer_models.hub.checkpoint_files import TRAINED_PREFIX
+from mer_models.training.train import ema_decay, train, update_average
+from mer_models.zoo.checkpoint import load_checkpoint
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -75,7 +75,7 @@ def test_checkpoint_holds_the_average_and_the_trained_weights(tmp_path):
 
 def train_start(run) -> dict[str, torch.Tensor]:
     """The weights a run starts from (the seed's initialisation)."""
-    from mer_models.model import RetargetModel
+    from mer_models.diffusion.model import RetargetModel
 
     torch.manual_seed(run.train.seed)
     return RetargetModel(run.model).state_dict()
@@ -126,9 +126,9 @@ def test_learning_curve_scores_the_average_and_the_trained_weights(tmp_path):
     ``trained`` the trained weights beside it: the same as a checkpoint holding those weights."""
     sys.path.insert(0, str(REPO / "tools"))
     from learning_curve import held_out
-
-    from mer_models.checkpoint import OPTIMIZER, WEIGHTS
     from model_helpers import synthetic_csv
+
+    from mer_models.hub.checkpoint_files import OPTIMIZER, WEIGHTS
 
     out = tmp_path / "c"
     train(ema_run(0.9), dataset(), out, steps=3)

@@ -7,22 +7,21 @@ import json
 import numpy as np
 import pytest
 import torch
-from safetensors.torch import load_file
-
-from mer_data.example_robot import EXAMPLE_ROBOT, write_example_urdf
-from mer_data.register import register_robot
-from mer_data.registry import get_skeleton
-from mer_models import zoo
-from mer_models.checkpoint import check_robot, load_checkpoint
-from mer_models.cli import main
-from mer_models.finetune import WithNewTarget
-from mer_models.synthetic import SyntheticDataset
-from mer_models.zoo.fromckpt import card_from_checkpoint
-from mer_models.zoo.registry import bundled_dir
-from mer_models.zoo.render import render_card
-
 from model_helpers import synthetic_csv
+from safetensors.torch import load_file
 from zoo_helpers import make_checkpoint
+
+from mer_data.robots.example import EXAMPLE_ROBOT, write_example_urdf
+from mer_data.robots.register import register_robot
+from mer_data.robots.registry import get_skeleton
+from mer_models import zoo
+from mer_models.cli import main
+from mer_models.hub.fromckpt import card_from_checkpoint
+from mer_models.hub.registry import bundled_dir
+from mer_models.hub.render import render_card
+from mer_models.training.finetune import WithNewTarget
+from mer_models.training.synthetic import SyntheticDataset
+from mer_models.zoo.checkpoint import check_robot, load_checkpoint
 
 FAST = ["--synthetic", "8", "--batch-size", "4", "--log-every", "1"]
 
@@ -77,7 +76,7 @@ def test_finetune_the_bundled_model_to_a_registered_robot_end_to_end(tmp_path, c
 
 
 def test_finetuning_starts_from_the_base_weights(tmp_path, robot):
-    from mer_models.finetune import finetune
+    from mer_models.training.finetune import finetune
 
     finetune(zoo.DEFAULT_MODEL, robot, tmp_path / "ft", synthetic=4, steps=1, batch_size=4, lr=1e-12)
     base = load_file(str(bundled_dir() / zoo.DEFAULT_MODEL / "model.safetensors"))
@@ -92,7 +91,7 @@ def test_a_base_trained_with_grouped_batches_fine_tunes_ungrouped(tmp_path, robo
     option, recorded in its config) must not reach it."""
     import shutil
 
-    from mer_models.finetune import finetune
+    from mer_models.training.finetune import finetune
 
     base = tmp_path / "base"
     shutil.copytree(bundled_dir() / zoo.DEFAULT_MODEL, base)

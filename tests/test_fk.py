@@ -5,17 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from conftest import ROBOTS
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from mer_data.fk import fk_skeleton, forward_kinematics, joint_rotations, skeleton_tensors
-from mer_data.registry import load_robot
-from mer_data.rotations import quat_to_matrix
-from mer_data.urdf import parse_urdf_bytes
-
-from conftest import ROBOTS
 from oracles import pk_chain, pk_config, yourdfpy_positions
 from urdf_factory import humanoid
+
+from mer_data.kinematics.fk import fk_skeleton, forward_kinematics, joint_rotations, skeleton_tensors
+from mer_data.kinematics.rotations import quat_to_matrix
+from mer_data.robots.registry import load_robot
+from mer_data.robots.urdf import parse_urdf_bytes
 
 
 def random_config(skel, n, gen, dtype=torch.float64):
@@ -77,9 +76,9 @@ def test_zero_pose_equals_rest_offsets(name):
 
 def test_fixed_joint_merging_preserves_positions(tmp_path):
     """A robot full of rotated fixed frames and tilted axes: every link position as yourdfpy has it."""
-    from mer_data.keypoint_proposal import propose_keypoints
-    from mer_data.robot_card import RobotCard
-    from mer_data.skeleton_builder import build_skeleton
+    from mer_data.robots.builder import build_skeleton
+    from mer_data.robots.card import RobotCard
+    from mer_data.robots.keypoints import propose_keypoints
 
     robot = humanoid(tilt=0.4)
     path = robot.write(tmp_path / "toy.urdf")
@@ -96,8 +95,8 @@ def test_fixed_joint_merging_preserves_positions(tmp_path):
 
 
 def test_mixed_robot_batch_equals_individual_fk():
-    from mer_data.samples import TrainingSample, collate
-    from mer_data.jointmap import joint_map
+    from mer_data.kinematics.jointmap import joint_map
+    from mer_data.motion.samples import TrainingSample, collate
 
     skels = [load_robot(n).skeleton for n in ("g1", "tron1", "h1", "g1")]
     T = 5
@@ -228,7 +227,7 @@ def test_analytic_backward_matches_finite_differences():
         return pos, rot
 
     def apply_mimic_(q):
-        from mer_data.fk import apply_mimic
+        from mer_data.kinematics.fk import apply_mimic
 
         return apply_mimic(q, st_.mimic_source, st_.mimic_multiplier, st_.mimic_offset)
 

@@ -20,20 +20,21 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fuzz_stats import STATS
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from urdf_factory import humanoid
 
 import mer_models
-from fuzz_stats import STATS
-from mer_data.errors import MerError
-from mer_data.motion_io import decompress_motion, parse_lafan1, write_lafan1_csv
-from mer_data.robot_card import RobotCard
-from mer_data.skeleton_builder import build_skeleton
-from mer_data.synthetic import walking_motion
-from mer_data.urdf import parse_urdf_bytes
-from mer_models.checkpoint import load_checkpoint
+from mer_data.base.errors import MerError
+from mer_data.motion.lafan1 import decompress_motion, parse_lafan1, write_lafan1_csv
+from mer_data.robots.builder import build_skeleton
+from mer_data.robots.card import RobotCard
+from mer_data.robots.registry import load_robot
+from mer_data.robots.urdf import parse_urdf_bytes
+from mer_data.synthesis.walking import walking_motion
 from mer_models.zoo import DEFAULT_MODEL
+from mer_models.zoo.checkpoint import load_checkpoint
 
 EXAMPLES = int(os.environ.get("MER_FUZZ_EXAMPLES", "0"))
 TIME_BOUND_S = 5.0  # per input (the slowest seen is ~0.1 s)
@@ -125,7 +126,7 @@ def csv_inputs(draw) -> bytes:
 
 
 def _read_csv(data: bytes) -> None:
-    m = parse_lafan1(data, "g1", path="fuzz.csv")
+    m = parse_lafan1(data, load_robot("g1"), path="fuzz.csv")
     assert np.isfinite(m.base_pos).all() and np.isfinite(m.joints).all() and np.isfinite(m.base_quat).all()
 
 
@@ -318,9 +319,9 @@ def test_fuzz_checkpoint_loader(data, ckpt_dir, monkeypatch):
 
 def test_yaml_aliases_are_refused_in_cards_and_key_point_files(tmp_path):
     """A "billion laughs" in YAML: nine levels of aliases expand 1 KB to 10^9 entries."""
-    from mer_data.errors import MerError
-    from mer_data.register import load_keypoints_file
-    from mer_data.robot_card import parse_card
+    from mer_data.base.errors import MerError
+    from mer_data.robots.card import parse_card
+    from mer_data.robots.register import load_keypoints_file
 
     lines = ['a0: &a0 ["x","x","x","x","x","x","x","x","x","x"]']
     lines += [f"a{i}: &a{i} [" + ",".join([f"*a{i - 1}"] * 10) + "]" for i in range(1, 10)]

@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import ROBOTS
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mer_data.jointmap import joint_map, keypoint_pairs
-from mer_data.registry import get_skeleton
-from mer_data.scaling import body_part_scales, scale_reference_positions
-
-from conftest import ROBOTS
+from mer_data.kinematics.jointmap import joint_map, keypoint_pairs
+from mer_data.kinematics.scaling import body_part_scales, scale_reference_positions
+from mer_data.robots.registry import get_skeleton
 
 
 @pytest.mark.parametrize("target", ROBOTS)

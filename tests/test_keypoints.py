@@ -6,16 +6,15 @@ import json
 
 import numpy as np
 import pytest
-
-from mer_data.keypoint_proposal import propose_keypoints, propose_robot
-from mer_data.registry import load_robot
-from mer_data.robot_card import RobotCard
-from mer_data.skeleton import KEYPOINTS
-from mer_data.skeleton_builder import build_skeleton
-from mer_data.urdf import load_urdf, parse_urdf_bytes
-
 from conftest import ROBOTS
 from urdf_factory import biped, humanoid, quadruped
+
+from mer_data.robots.builder import build_skeleton
+from mer_data.robots.card import RobotCard
+from mer_data.robots.keypoints import propose_keypoints, propose_robot
+from mer_data.robots.registry import load_robot
+from mer_data.robots.urdf import load_urdf, parse_urdf_bytes
+from mer_data.skeleton import KEYPOINTS
 
 
 def _swap(k: str) -> str:

@@ -16,7 +16,7 @@ pytest.importorskip("mink")
 
 import torch  # noqa: E402
 
-from mer_data.fk import fk_skeleton, skeleton_tensors  # noqa: E402
+from mer_data.kinematics.fk import fk_skeleton, skeleton_tensors  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
 import mink_peer  # noqa: E402

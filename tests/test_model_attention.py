@@ -6,7 +6,7 @@ import math
 
 import torch
 
-from mer_models.attention import (
+from mer_models.diffusion.attention import (
     MultiConditionCrossAttention,
     SpatialAttention,
     TemporalAttention,

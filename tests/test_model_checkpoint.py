@@ -9,13 +9,13 @@ from pathlib import Path
 
 import pytest
 import torch
+from model_helpers import MICRO, micro_checkpoint, micro_run  # noqa: F401 (fixture)
 from safetensors.torch import load_file, save_file
 
-from mer_data.errors import CheckpointError, ConfigError, UnseenRobotError
-from mer_models.checkpoint import check_robot, load_checkpoint, resolve_model, save_checkpoint
-from mer_models.model import RetargetModel
-
-from model_helpers import MICRO, micro_checkpoint, micro_run  # noqa: F401 (fixture)
+from mer_data.base.errors import CheckpointError, ConfigError, UnseenRobotError
+from mer_models.diffusion.model import RetargetModel
+from mer_models.hub.checkpoint_files import save_checkpoint
+from mer_models.zoo.checkpoint import check_robot, load_checkpoint, resolve_model
 
 PACKAGE = Path(__file__).resolve().parents[1] / "mer_models"
 
@@ -128,7 +128,7 @@ def test_no_pickle_anywhere_in_the_model_package():
 def test_save_is_atomic(tmp_path, monkeypatch):
     m = RetargetModel(MICRO)
     save_checkpoint(tmp_path / "c", m, micro_run(), robots={"targets": {}, "references": {}}, step=1)
-    import mer_models.checkpoint as cp
+    import mer_models.hub.checkpoint_files as cp
 
     def boom(*a, **k):
         raise OSError("disk full")

@@ -7,11 +7,10 @@ import shutil
 
 import numpy as np
 import pytest
-
-from mer_data.registry import get_skeleton
-from mer_models.cli import main
-
 from model_helpers import micro_checkpoint, synthetic_csv  # noqa: F401 (fixture)
+
+from mer_data.robots.registry import get_skeleton
+from mer_models.cli import main
 
 
 def run(capsys, *argv):
@@ -47,7 +46,7 @@ def test_retarget_writes_every_output_within_limits(tmp_path, capsys, micro_chec
     a = np.loadtxt(out / "h1.csv", delimiter=",")
     h1 = get_skeleton("h1")
     assert a.shape == (90, 7 + 19)
-    from mer_models.writers import csv_columns
+    from mer_models.export.writers import csv_columns
 
     idx = [h1.node_index(n) for n in csv_columns(h1)]
     assert (a[:, 7:] >= h1.lower[idx] - 1e-5).all() and (a[:, 7:] <= h1.upper[idx] + 1e-5).all()

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from mer_data.errors import ConfigError
+from mer_data.base.errors import ConfigError
 from mer_models.config import ModelConfig, SamplerConfig, TrainConfig, from_dict, preset
 
 

@@ -3,16 +3,15 @@
 from __future__ import annotations
 
 import torch
-
-from mer_data.registry import get_skeleton
-from mer_models.config import EnergyConfig
-from mer_models.energy import energy_terms, f_kin, split_motion
-from mer_models.ik import ancestors
-from mer_models.kinematics import batch_fk, graph_from_batch
-from mer_models.model import RetargetModel
-from mer_models.optimize import optimize_motion
-
 from model_helpers import MICRO, mixed_batch
+
+from mer_data.robots.registry import get_skeleton
+from mer_models.batch import batch_fk, graph_from_batch
+from mer_models.config import EnergyConfig
+from mer_models.diffusion.model import RetargetModel
+from mer_models.solver.energy import energy_terms, f_kin, split_motion
+from mer_models.solver.ik import ancestors
+from mer_models.solver.optimize import optimize_motion
 
 CFG = EnergyConfig()
 
@@ -77,7 +76,7 @@ def test_optimisation_recovers_a_reachable_motion_within_limits():
     """G1 -> G1: the scaled reference is exactly reachable; the baseline must get there."""
     b = mixed_batch(("g1", "h1"))
     g = graph_from_batch(b, "tgt")
-    from mer_data.rotations import axis_angle_to_matrix
+    from mer_data.kinematics.rotations import axis_angle_to_matrix
 
     ref_rot = axis_angle_to_matrix(b["reference"][:, :, 0, 0:3])
     out = optimize_motion(CFG, g, b["joint_map"], b["ref_scaled_pos"], ref_rot, iters=30, gn_iters=15)
@@ -103,7 +102,7 @@ def test_optimisation_of_a_sample_does_not_depend_on_the_batch():
     decision near a tie can amplify that rounding (8.7e-5 rad once seen on a loaded machine)."""
     b = mixed_batch(("h1", "tron1"))
     one = mixed_batch(("h1",))
-    from mer_data.rotations import axis_angle_to_matrix
+    from mer_data.kinematics.rotations import axis_angle_to_matrix
 
     def run(bb):
         g = _double(graph_from_batch(bb, "tgt"))

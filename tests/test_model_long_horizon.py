@@ -2,20 +2,18 @@
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from mer_data.registry import get_skeleton
-from mer_models.config import SamplerConfig
-from mer_models.long_horizon import clip_starts, retarget_sequence
-from mer_models.model import RetargetModel
-from mer_models.synthetic import _features, synthetic_motion
-
 from model_helpers import MICRO
+
+from mer_data.robots.registry import get_skeleton
+from mer_models.config import SamplerConfig
+from mer_models.diffusion.model import RetargetModel
+from mer_models.retarget.long_horizon import clip_starts, retarget_sequence
+from mer_models.training.synthetic import _features, synthetic_motion
 
 
 @settings(max_examples=200, deadline=None)
@@ -95,7 +93,7 @@ def test_an_oracle_denoiser_reproduces_the_source_motion(monkeypatch):
     out = retarget_sequence(model, ref, g1, g1, SamplerConfig(steps=2, overlap=10))
     np.testing.assert_allclose(out["base_pos"], motion["base_pos"], atol=2e-5)
     np.testing.assert_allclose(out["q"], motion["q"], atol=2e-5)
-    from mer_data.rotations import quat_to_matrix
+    from mer_data.kinematics.rotations import quat_to_matrix
 
     np.testing.assert_allclose(out["base_rot"], quat_to_matrix(torch.from_numpy(motion["base_quat"])).numpy(), atol=2e-5)
 
@@ -103,7 +101,7 @@ def test_an_oracle_denoiser_reproduces_the_source_motion(monkeypatch):
 def test_several_targets_in_one_pass_equal_one_target_calls():
     """``retarget_sequences``: the reference encoded once per window for every target, and each
     target's motion exactly what a one-target call gives (its own noise, in-painting across windows)."""
-    from mer_models.long_horizon import retarget_sequences
+    from mer_models.retarget.long_horizon import retarget_sequences
 
     torch.manual_seed(0)
     g1 = get_skeleton("g1")

@@ -5,11 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-
-from mer_models.energy import split_motion
-from mer_models.metrics import summarize, window_metrics
-
 from model_helpers import mixed_batch
+
+from mer_models.retarget.metrics import summarize, window_metrics
+from mer_models.solver.energy import split_motion
 
 
 def _motion(b):

@@ -6,12 +6,11 @@ import dataclasses
 
 import pytest
 import torch
-
-from mer_models.edm import loss_weight, precondition, sample_sigma
-from mer_models.kinematics import rot_z
-from mer_models.model import RetargetModel
-
 from model_helpers import MICRO, mixed_batch
+
+from mer_models.batch import rot_z
+from mer_models.diffusion.edm import loss_weight, precondition, sample_sigma
+from mer_models.diffusion.model import RetargetModel
 
 
 @pytest.fixture(
@@ -67,7 +66,7 @@ def test_output_moves_with_the_input_heading_and_position(model):
         return p @ R.T + shift
 
     ref = b["reference"].clone()
-    from mer_models.representation import transform_features
+    from mer_models.diffusion.representation import transform_features
 
     ref2 = transform_features(ref, R[None], -(shift @ R)[None])  # p -> R p + shift
     b2["reference"] = ref2
@@ -121,8 +120,8 @@ def test_paper_configuration_builds(tmp_path):
 def test_goal_features_give_each_node_its_scaled_reference_goal():
     """goal_input: a mapped target node gets its goal (canonical frame, base-relative, velocity,
     orientation); unmapped and padding nodes get zeros; the network uses them."""
-    from mer_models.energy import keypoint_goals, orientation_pairs
-    from mer_models.network import GOAL_DIM
+    from mer_models.diffusion.network import GOAL_DIM
+    from mer_models.solver.energy import keypoint_goals, orientation_pairs
 
     m = RetargetModel(dataclasses.replace(MICRO, goal_input=True)).eval()
     b = mixed_batch(("g1", "tron1"))
@@ -141,7 +140,7 @@ def test_goal_features_give_each_node_its_scaled_reference_goal():
     torch.testing.assert_close(f[:, :, 0, 10:13], grot[:, :, 0, :, 0])
     torch.testing.assert_close(f[:, :, 0, 13:16], grot[:, :, 0, :, 1])
     # in the base goal's frame: the goal relative to the base's, and the segment from the nearest mapped ancestor
-    from mer_data.registry import get_skeleton
+    from mer_data.robots.registry import get_skeleton
 
     g1 = get_skeleton("g1")
     R = grot[0, :, 0]  # (T, 3, 3) the base's orientation goal
@@ -169,7 +168,7 @@ def test_goal_features_give_each_node_its_scaled_reference_goal():
 def test_goal_prior_starts_at_the_goals_and_keeps_the_sample_at_low_noise():
     """goal_prior: the untrained denoiser (F = 0) at high noise returns the base's goal pose and
     every node's goal position (its nearest mapped ancestor's where it has none); at low noise D -> x."""
-    from mer_models.energy import keypoint_goals, orientation_pairs
+    from mer_models.solver.energy import keypoint_goals, orientation_pairs
 
     m = RetargetModel(dataclasses.replace(MICRO, goal_input=True, goal_prior=True)).eval()
     b = mixed_batch(("g1", "tron1"))
@@ -183,7 +182,7 @@ def test_goal_prior_starts_at_the_goals_and_keeps_the_sample_at_low_noise():
     world = m.decode(cond.prior, cond)  # the prior decoded: the goals in world coordinates
     assert (out["base_pos"] - world["base_pos"]).abs().max() < 0.02
     grot, _ = orientation_pairs(cond.eta, cond.goal_rot, cond.rot_mask)
-    from mer_data.rotations import axis_angle_to_matrix
+    from mer_data.kinematics.rotations import axis_angle_to_matrix
 
     torch.testing.assert_close(axis_angle_to_matrix(cond.prior[:, :, 0, 0:3]), grot[:, :, 0], atol=1e-4, rtol=0)
     pos = torch.cat([d[:, :, :1, 3:6], d[:, :, 1:, 1:4]], 2)  # position features (diffusion space, pos_scale 1)
@@ -210,7 +209,7 @@ def test_start_frac_trains_where_the_sampler_starts(init_noise):
     """TrainConfig.start_frac: the first k samples get sigma_max and the sampler's initial state (the
     goals plus init_noise * sigma_max noise); the rest keep their noisy input and sigma."""
     from mer_models.config import RunConfig, SamplerConfig
-    from mer_models.train import _at_sampler_start
+    from mer_models.training.train import _at_sampler_start
 
     m = RetargetModel(dataclasses.replace(MICRO, goal_input=True, goal_prior=True)).eval()
     b = mixed_batch(("g1", "tron1", "h1"))
@@ -232,9 +231,9 @@ def test_start_frac_trains_where_the_sampler_starts(init_noise):
 def test_project_recomputes_positions_and_velocities_from_the_angles():
     """RetargetModel.project: a sample whose features came from FK is returned unchanged; scrambled
     position and velocity features are replaced by FK of its angles and base pose."""
-    from mer_data.rotations import axis_angle_to_matrix
-    from mer_models.kinematics import batch_features
-    from mer_models.representation import normalize
+    from mer_data.kinematics.rotations import axis_angle_to_matrix
+    from mer_models.batch import batch_features
+    from mer_models.diffusion.representation import normalize
 
     m = RetargetModel(dataclasses.replace(MICRO, goal_input=True, goal_prior=True)).eval()
     b = mixed_batch(("g1", "tron1", "talos"), augment_first=True)
@@ -260,7 +259,7 @@ def test_feedback_frac_trains_on_the_networks_own_projected_estimate():
     start, made consistent (project), at sigma = feedback_sigma; the others are unchanged, and the
     cached reference encoding of that gradient-free evaluation is dropped."""
     from mer_models.config import RunConfig, SamplerConfig, TrainConfig
-    from mer_models.train import _at_feedback
+    from mer_models.training.train import _at_feedback
 
     torch.manual_seed(0)
     m = RetargetModel(dataclasses.replace(MICRO, goal_input=True, goal_prior=True)).eval()

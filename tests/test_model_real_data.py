@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 import torch
 
-from mer_data.fk import fk_skeleton, skeleton_tensors
-from mer_data.motion_io import read_lafan1_csv
-from mer_data.registry import get_skeleton
+from mer_data.kinematics.fk import fk_skeleton, skeleton_tensors
+from mer_data.motion.lafan1 import read_lafan1_csv
+from mer_data.robots.registry import get_skeleton
 from mer_models.cli import main
-from mer_models.retarget import retarget_file
+from mer_models.retarget.clip import retarget_file
 
 
 @pytest.fixture

@@ -7,11 +7,11 @@ import math
 
 import pytest
 import torch
+from model_helpers import MICRO, mixed_batch
 
 from mer_models.config import ConfigError, EnergyConfig, SamplerConfig
-from mer_models.inference import sample_conditions
-from mer_models.model import RetargetModel
-from mer_models.sampling import (
+from mer_models.diffusion.model import RetargetModel
+from mer_models.diffusion.sampling import (
     CountingDenoiser,
     EnergyGuidance,
     feedback_sigmas,
@@ -21,8 +21,7 @@ from mer_models.sampling import (
     sample_feedback,
     sample_heun,
 )
-
-from model_helpers import MICRO, mixed_batch
+from mer_models.retarget.inference import sample_conditions
 
 
 def test_karras_schedule():

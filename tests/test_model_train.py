@@ -12,14 +12,13 @@ from pathlib import Path
 
 import pytest
 import torch
+from model_helpers import MICRO, assert_resume_exact, dataset, micro_run, mixed_batch
 from safetensors.torch import load_file
 
-from mer_data.errors import CheckpointError, ConfigError
+from mer_data.base.errors import CheckpointError, ConfigError
 from mer_models.config import preset
-from mer_models.train import clean_samples, native_bf16, train
-from mer_models.model import RetargetModel
-
-from model_helpers import MICRO, assert_resume_exact, dataset, micro_run, mixed_batch
+from mer_models.diffusion.model import RetargetModel
+from mer_models.training.train import clean_samples, native_bf16, train
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -110,7 +109,7 @@ def test_resume_accepts_another_sampler(tmp_path):
 
 
 def test_learning_rate_warms_up_then_decays_by_cosine():
-    from mer_models.train import _lr
+    from mer_models.training.train import _lr
 
     run = micro_run()
     run = run.replace(train=dataclasses.replace(run.train, lr=1.0, warmup=10, lr_decay_steps=100, lr_min_ratio=0.1))
@@ -124,12 +123,12 @@ def test_learning_rate_warms_up_then_decays_by_cosine():
 def test_bf16_warns_where_the_cpu_would_emulate_it(tmp_path, monkeypatch, caplog):
     """On a CPU without AMX/AVX512-BF16, bf16 autocast is emulated and slower than float32: the
     run still trains (the user asked for it) but the log says so; with native bf16 it does not."""
-    import mer_models.train as train_module
+    import mer_models.training.train as train_module
 
     for native, folder in ((False, "emulated"), (True, "native")):
         monkeypatch.setattr(train_module, "native_bf16", lambda device="cpu", native=native: native)
         caplog.clear()
-        with caplog.at_level(logging.WARNING, logger="mer_models.train"):
+        with caplog.at_level(logging.WARNING, logger="mer_models.training.train"):
             res = train(micro_run(), dataset(), tmp_path / folder, steps=1, bf16=True)
         assert res.step == 1
         assert ("without native bfloat16" in caplog.text) is not native, caplog.text

@@ -7,13 +7,13 @@ import json
 import numpy as np
 import torch
 
-from mer_data.motion_io import read_lafan1_csv
-from mer_data.registry import get_skeleton, load_robot
-from mer_data.rotations import quat_to_matrix
-from mer_models.kinematics import rot_z
-from mer_models.plot import plot_motion
-from mer_models.synthetic import synthetic_motion
-from mer_models.writers import TargetMotion, csv_columns, write_csv, write_mcap, write_npz
+from mer_data.kinematics.rotations import quat_to_matrix
+from mer_data.motion.lafan1 import read_lafan1_csv
+from mer_data.robots.registry import get_skeleton, load_robot
+from mer_models.batch import rot_z
+from mer_models.export.plot import plot_motion
+from mer_models.export.writers import TargetMotion, csv_columns, write_csv, write_mcap, write_npz
+from mer_models.training.synthetic import synthetic_motion
 
 
 def _motion(name="g1", frames=40, seed=0) -> TargetMotion:
@@ -98,7 +98,7 @@ def test_png_is_written(tmp_path):
 
 def test_npz_is_written_at_the_trackers_rate_by_lerp_and_slerp(tmp_path):
     """Default 50 Hz (mjlab / BeyondMimic control rate), like csv_to_npz: a 30 Hz motion would play 1.67x too fast."""
-    from mer_models.writers import resample_motion
+    from mer_models.export.writers import resample_motion
 
     m = _motion("h1")  # 40 frames at 30 Hz: 1.3 s
     z = np.load(write_npz(tmp_path / "m.npz", m))
@@ -109,7 +109,7 @@ def test_npz_is_written_at_the_trackers_rate_by_lerp_and_slerp(tmp_path):
     half = resample_motion(TargetMotion(m.skeleton, 30.0, m.q[:2], m.base_pos[:2], m.base_rot[:2]), 60.0)
     np.testing.assert_allclose(half.q[1], (m.q[0] + m.q[1]) / 2, atol=1e-12)
     np.testing.assert_allclose(half.base_pos[1], (m.base_pos[0] + m.base_pos[1]) / 2, atol=1e-12)
-    from mer_data.rotations import rotation_angle_between
+    from mer_data.kinematics.rotations import rotation_angle_between
 
     a = float(rotation_angle_between(torch.from_numpy(half.base_rot[1]), torch.from_numpy(m.base_rot[0])))
     b = float(rotation_angle_between(torch.from_numpy(m.base_rot[1]), torch.from_numpy(m.base_rot[0])))

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from shard_helpers import make_input
 
-from mer_data.errors import MotionFormatError
-from mer_data.motion_io import parse_lafan1, read_lafan1_csv
-from mer_data.plausibility import check_motion_arrays
-from mer_data.registry import get_skeleton
+from mer_data.base.errors import MotionFormatError
+from mer_data.motion.lafan1 import parse_lafan1, read_lafan1_csv
+from mer_data.motion.plausibility import check_motion_arrays
+from mer_data.robots.registry import get_skeleton, load_robot
 from mer_models.cli import main
 
 CLIPS = {"dance1_subject1": (2.1, 0.0, 0.1), "walk1_subject1": (2.1, 0.5, 0.0)}
@@ -214,7 +214,7 @@ def test_warnings_reach_the_motion_and_the_log(inp, caplog):
     cells[0] = str(float(cells[0]) + 1.0)  # a 1 m root glitch on line 4
     rows[3] = ",".join(cells)
     with caplog.at_level("WARNING"):
-        m = parse_lafan1("\n".join(rows).encode() + b"\n", "g1", path="g.csv")
+        m = parse_lafan1("\n".join(rows).encode() + b"\n", load_robot("g1"), path="g.csv")
     assert len(m.warnings) == 1 and "g.csv:4:" in m.warnings[0]
     assert "unusual motion" in caplog.text
 

@@ -10,11 +10,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mer_data.csv_numeric import parse_numeric_csv
-from mer_data.errors import MotionFormatError, UnknownRobotError
-from mer_data.motion_io import QUAT_TOLERANCE, lafan1_columns, parse_lafan1, read_lafan1_csv, write_lafan1_csv
-from mer_data.registry import load_robot
-from mer_data.synthetic import walking_motion
+from mer_data.base.errors import MotionFormatError, UnknownRobotError
+from mer_data.motion.csv_numeric import parse_numeric_csv
+from mer_data.motion.lafan1 import QUAT_TOLERANCE, lafan1_columns, parse_lafan1, read_lafan1_csv, write_lafan1_csv
+from mer_data.robots.registry import load_robot
+from mer_data.synthesis.walking import walking_motion
 
 G1_COLS = 36
 
@@ -32,13 +32,13 @@ def _csv(rows) -> bytes:
 
 def _err(data: bytes, robot="g1", path="clip.csv") -> MotionFormatError:
     with pytest.raises(MotionFormatError) as exc:
-        parse_lafan1(data, robot, path=path)
+        parse_lafan1(data, load_robot(robot), path=path)
     return exc.value
 
 
 # ---- exact values -------------------------------------------------------------------------------
 def test_layouts_of_the_builtin_robots():
-    assert len(lafan1_columns("g1")) == 29 and len(lafan1_columns("h1")) == 19 and len(lafan1_columns("h1_2")) == 27
+    assert len(lafan1_columns(load_robot("g1"))) == 29 and len(lafan1_columns(load_robot("h1"))) == 19 and len(lafan1_columns(load_robot("h1_2"))) == 27
 
 
 @pytest.mark.parametrize("robot", ["g1", "h1", "h1_2"])
@@ -47,7 +47,7 @@ def test_write_read_round_trip(tmp_path, robot, suffix):
     m = walking_motion(robot, 1.0)
     p = write_lafan1_csv(tmp_path / f"clip{suffix}", m)
     back = read_lafan1_csv(p, robot)
-    assert back.num_frames == m.num_frames and back.columns == lafan1_columns(robot)
+    assert back.num_frames == m.num_frames and back.columns == lafan1_columns(load_robot(robot))
     np.testing.assert_allclose(back.base_pos, m.base_pos, atol=5e-7)
     np.testing.assert_allclose(back.joints, m.joints, atol=5e-7)
     np.testing.assert_allclose(np.abs((back.base_quat * m.base_quat).sum(1)), 1.0, atol=1e-6)  # wxyz inside
@@ -58,7 +58,7 @@ def test_write_read_round_trip(tmp_path, robot, suffix):
 def test_quaternion_is_converted_to_wxyz():
     rows = _g1_rows(2)
     rows[0][3:7] = [0.0, 0.0, 0.6, 0.8]  # x y z w
-    m = parse_lafan1(_csv(rows), "g1")
+    m = parse_lafan1(_csv(rows), load_robot("g1"))
     np.testing.assert_array_equal(m.base_quat[0], [0.8, 0.0, 0.0, 0.6])
 
 
@@ -93,10 +93,10 @@ def test_fast_parser_matches_python_float_property(rows, decimals):
 
 def test_tolerated_variants():
     rows = _g1_rows(3)
-    base = parse_lafan1(_csv(rows), "g1")
-    no_final_newline = parse_lafan1(_csv(rows).rstrip(b"\n"), "g1")
-    crlf = parse_lafan1(_csv(rows).replace(b"\n", b"\r\n"), "g1")
-    trailing_blank = parse_lafan1(_csv(rows) + b"\n\n", "g1")
+    base = parse_lafan1(_csv(rows), load_robot("g1"))
+    no_final_newline = parse_lafan1(_csv(rows).rstrip(b"\n"), load_robot("g1"))
+    crlf = parse_lafan1(_csv(rows).replace(b"\n", b"\r\n"), load_robot("g1"))
+    trailing_blank = parse_lafan1(_csv(rows) + b"\n\n", load_robot("g1"))
     for m in (no_final_newline, crlf, trailing_blank):
         assert np.array_equal(m.joints, base.joints) and np.array_equal(m.base_quat, base.base_quat)
 
@@ -104,7 +104,7 @@ def test_tolerated_variants():
 def test_non_unit_quaternion_within_tolerance_is_renormalized():
     rows = _g1_rows(3)
     rows[1][3:7] = [v * (1 + 0.5 * QUAT_TOLERANCE) for v in rows[1][3:7]]
-    m = parse_lafan1(_csv(rows), "g1")
+    m = parse_lafan1(_csv(rows), load_robot("g1"))
     assert abs(np.linalg.norm(m.base_quat[1]) - 1) < 1e-12
 
 
@@ -193,7 +193,7 @@ def test_unknown_robot_and_robot_without_a_lafan1_layout(tmp_path):
     with pytest.raises(UnknownRobotError, match="unknown robot 'nope'.*g1"):
         read_lafan1_csv(p, "nope")
     atlas = load_robot("atlas")
-    assert atlas.card.lafan1_columns is None and lafan1_columns("atlas") == tuple(atlas.skeleton.joint_names)
+    assert atlas.card.lafan1_columns is None and lafan1_columns(atlas) == tuple(atlas.skeleton.joint_names)
     with pytest.raises(MotionFormatError, match="expected 37 .atlas: root xyz, root quaternion xyzw, 30 joint angles"):
         read_lafan1_csv(p, "atlas")
 

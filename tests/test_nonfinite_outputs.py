@@ -10,18 +10,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from model_helpers import synthetic_csv
 from safetensors.torch import load_file, save_file
 from urdf_factory import humanoid
 
 import mer_models
-from mer_data.errors import CheckpointError, ConfigError, OutputError
-from mer_data.registry import get_skeleton, load_robot
+from mer_data.base.errors import CheckpointError, ConfigError, OutputError
+from mer_data.robots.registry import get_skeleton, load_robot
 from mer_models.cli import main
 from mer_models.config import ModelConfig
-from mer_models.writers import TargetMotion, write_csv, write_mcap, write_npz
+from mer_models.export.writers import TargetMotion, write_csv, write_mcap, write_npz
 from mer_models.zoo import DEFAULT_MODEL
-
-from model_helpers import synthetic_csv
 
 BUNDLED = Path(mer_models.__file__).parent / "bundled" / DEFAULT_MODEL  # the bundled default model (mer-base)
 
@@ -91,7 +90,7 @@ def test_malformed_config_fields_are_errors_not_tracebacks(capsys, tmp_path, ckp
 
 
 def test_a_huge_model_is_refused_before_anything_is_allocated():
-    from mer_models.model import RetargetModel
+    from mer_models.diffusion.model import RetargetModel
 
     with pytest.raises(ConfigError, match="MER_MAX_MODEL_PARAMETERS"):
         RetargetModel(ModelConfig(layers=1_000_000))
@@ -137,7 +136,8 @@ def test_writers_refuse_non_finite_motions(tmp_path):
 
 
 def test_saving_nan_weights_is_refused(tmp_path):
-    from mer_models.checkpoint import load_checkpoint, save_checkpoint
+    from mer_models.hub.checkpoint_files import save_checkpoint
+    from mer_models.zoo.checkpoint import load_checkpoint
 
     ck = load_checkpoint(BUNDLED)
     next(ck.model.parameters()).data.fill_(float("inf"))

@@ -15,11 +15,11 @@ import pytest
 import torch
 from lxml import etree
 
-from mer_data.motion_io import read_lafan1_csv
-from mer_data.registry import get_skeleton, load_robot
-from mer_data.rotations import quat_to_matrix
-from mer_models.synthetic import synthetic_motion
-from mer_models.writers import TargetMotion, write_npz
+from mer_data.kinematics.rotations import quat_to_matrix
+from mer_data.motion.lafan1 import read_lafan1_csv
+from mer_data.robots.registry import get_skeleton, load_robot
+from mer_models.export.writers import TargetMotion, write_npz
+from mer_models.training.synthetic import synthetic_motion
 
 mujoco = pytest.importorskip("mujoco", reason="MuJoCo replays the npz (pip install -e '.[dev]')")
 

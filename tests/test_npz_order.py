@@ -11,15 +11,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-
-from mer_data.errors import OutputError
-from mer_data.registry import get_skeleton
-from mer_data.rotations import quat_to_matrix
-from mer_models.cli import main
-from mer_models.synthetic import synthetic_motion
-from mer_models.writers import TargetMotion, isaaclab_order, write_npz
-
 from model_helpers import synthetic_csv
+
+from mer_data.base.errors import OutputError
+from mer_data.kinematics.rotations import quat_to_matrix
+from mer_data.robots.registry import get_skeleton
+from mer_models.cli import main
+from mer_models.export.writers import TargetMotion, isaaclab_order, write_npz
+from mer_models.training.synthetic import synthetic_motion
 
 ISAACLAB_G1_JOINTS = [
     "left_hip_pitch_joint", "right_hip_pitch_joint", "waist_yaw_joint",

@@ -9,18 +9,18 @@ import json
 import numpy as np
 import pytest
 import torch
+from model_helpers import MICRO, dataset, micro_run
 from safetensors.torch import load_file
+from shard_helpers import build, make_input
 from torch.utils.data import Subset
 
-from mer_data.errors import ConfigError
-from mer_data.samples import collate
+from mer_data.base.errors import ConfigError
+from mer_data.motion.samples import collate
 from mer_data.shards import ShardDataset
 from mer_models.config import TrainConfig
-from mer_models.model import RetargetModel, shared_rows
-from mer_models.train import _OrderSampler, reference_groups, train
-
-from model_helpers import MICRO, dataset, micro_run
-from shard_helpers import build, make_input
+from mer_models.diffusion.model import RetargetModel, shared_rows
+from mer_models.training.order import OrderSampler, reference_groups
+from mer_models.training.train import train
 
 
 @pytest.fixture(scope="module")
@@ -65,7 +65,7 @@ def test_reference_groups_follow_a_target_filter_and_a_subset(shards):
 
 def test_grouped_sampler_batches_are_whole_windows_and_an_epoch_repeats_no_sample():
     groups = [np.arange(6 * w, 6 * w + 6) for w in range(10)]  # 10 windows x 6 samples
-    s = _OrderSampler(60, 8, seed=3, start=0, rank=0, world=1, groups=groups, group=2)
+    s = OrderSampler(60, 8, seed=3, start=0, rank=0, world=1, groups=groups, group=2)
     assert s.per_epoch == 30 * 2 // 8  # 30 chunks of 2, 4 chunks per batch
     seen = []
     for step in range(s.per_epoch):
@@ -75,17 +75,17 @@ def test_grouped_sampler_batches_are_whole_windows_and_an_epoch_repeats_no_sampl
             assert b[c] // 6 == b[c + 1] // 6  # each chunk from one window
         seen += b
     assert len(seen) == len(set(seen))
-    assert s.batch_at(5) == _OrderSampler(60, 8, 3, 0, 0, 1, groups, 2).batch_at(5)  # a pure function of the step
+    assert s.batch_at(5) == OrderSampler(60, 8, 3, 0, 0, 1, groups, 2).batch_at(5)  # a pure function of the step
     assert s.batch_at(s.per_epoch) != s.batch_at(0)  # the next epoch draws again
     # the processes of a global batch take whole chunks and together the whole batch
-    parts = [_OrderSampler(60, 8, 3, 0, r, 2, groups, 2).batch_at(4) for r in range(2)]
+    parts = [OrderSampler(60, 8, 3, 0, r, 2, groups, 2).batch_at(4) for r in range(2)]
     assert sorted(parts[0] + parts[1]) == sorted(s.batch_at(4)) and all(len(p) == 4 for p in parts)
     assert all(p[0] // 6 == p[1] // 6 and p[2] // 6 == p[3] // 6 for p in parts)
 
 
 def test_sampler_without_groups_keeps_its_data_order():
     """ref_group 1 draws the batches it drew before the option existed (resumed runs continue the same)."""
-    s = _OrderSampler(50, 8, seed=7, start=0, rank=1, world=2)
+    s = OrderSampler(50, 8, seed=7, start=0, rank=1, world=2)
     for step in (0, 3, 6, 9):
         epoch, k = divmod(step, 50 // 8)
         order = np.random.default_rng([7, epoch]).permutation(50)
@@ -95,9 +95,9 @@ def test_sampler_without_groups_keeps_its_data_order():
 def test_grouped_sampler_refusals():
     groups = [np.arange(3 * w, 3 * w + 3) for w in range(4)]
     with pytest.raises(ConfigError, match="processes"):
-        _OrderSampler(12, 4, 0, 0, 0, 4, groups, 2)  # 2 windows per batch over 4 processes
+        OrderSampler(12, 4, 0, 0, 0, 4, groups, 2)  # 2 windows per batch over 4 processes
     with pytest.raises(ConfigError, match="3 samples at most"):
-        _OrderSampler(12, 8, 0, 0, 0, 1, groups, 4)
+        OrderSampler(12, 8, 0, 0, 0, 1, groups, 4)
     with pytest.raises(ConfigError, match="ref_group"):
         TrainConfig(batch_size=6, ref_group=4)
     with pytest.raises(ConfigError, match="ref_group"):

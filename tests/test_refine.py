@@ -5,9 +5,9 @@ from __future__ import annotations
 import json
 
 import numpy as np
-from mer_models.cli import main
-
 from model_helpers import micro_checkpoint, synthetic_csv  # noqa: F401 (fixture)
+
+from mer_models.cli import main
 
 
 def test_evaluate_refine_sits_between_the_model_and_the_optimiser(tmp_path, capsys, micro_checkpoint):  # noqa: F811
@@ -45,13 +45,12 @@ def _warm_start_case():
     optimiser's solution (angles 0.2 rad and the base 4 cm away, slowly varying; 8 cm g-mpbpe): what
     a model's output looks like to the refinement."""
     import torch
-
-    from mer_data.rotations import axis_angle_to_matrix
-    from mer_models.config import EnergyConfig
-    from mer_models.kinematics import graph_from_batch
-    from mer_models.optimize import optimize_motion
-
     from model_helpers import mixed_batch
+
+    from mer_data.kinematics.rotations import axis_angle_to_matrix
+    from mer_models.batch import graph_from_batch
+    from mer_models.config import EnergyConfig
+    from mer_models.solver.optimize import optimize_motion
 
     b = mixed_batch(("g1", "g1"), seed=3)
     g = graph_from_batch(b, "tgt")
@@ -69,14 +68,14 @@ def _warm_start_case():
 
 def test_a_warm_start_solves_whole_windows_and_lands_at_the_optimiser():
     """``--refine K``: K Levenberg-Marquardt iterations with the frames coupled exactly
-    (:func:`mer_models.ik.coupled_lm_ik`). From a smooth warm start 8 cm off, 5 of them land within
+    (:func:`mer_models.solver.ik.coupled_lm_ik`). From a smooth warm start 8 cm off, 5 of them land within
     5 % of the optimiser's g-mpbpe with less jerk than the Jacobi-stage optimiser, where 5 Jacobi
     iterations stay 1.2x farther off; the cost falls monotonically and every sample is solved on its own."""
     import torch
 
-    from mer_models.ik import coupled_lm_ik, gauss_newton_ik
-    from mer_models.metrics import window_metrics
-    from mer_models.optimize import optimize_motion
+    from mer_models.retarget.metrics import window_metrics
+    from mer_models.solver.ik import coupled_lm_ik, gauss_newton_ik
+    from mer_models.solver.optimize import optimize_motion
 
     b, args, kw, best, warm = _warm_start_case()
     refined = optimize_motion(*args, **kw, gn_iters=5, init=warm)
@@ -113,7 +112,7 @@ def test_the_block_tridiagonal_solve_is_the_dense_solve():
     random SPD blocks and couplings, several window lengths (1 frame included)."""
     import torch
 
-    from mer_models.ik import _block_tridiagonal_solve
+    from mer_models.solver.ik import _block_tridiagonal_solve
 
     gen = torch.Generator().manual_seed(0)
     for T in (1, 2, 3, 7, 31, 100):
@@ -145,7 +144,7 @@ def test_the_coupled_prior_has_the_jacobi_prior_gradient():
     share their fixed point (docs/model.md)."""
     import torch
 
-    from mer_models.ik import _neighbour_mean, _velocity_prior
+    from mer_models.solver.ik import _neighbour_mean, _velocity_prior
 
     q = torch.randn(2, 9, 4, dtype=torch.float64, requires_grad=True)
     w = torch.rand(2, 1, 4, dtype=torch.float64)

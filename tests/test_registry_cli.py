@@ -8,15 +8,14 @@ import os
 import numpy as np
 import pytest
 import yaml
-
-from mer_data import registry
-from mer_data.errors import RegistryError, UnknownRobotError
-from mer_data.register import register_robot
-from mer_data.registry import get_skeleton, list_robots, load_robot, robots_dir, unregister_robot
-from mer_models.cli import main
-
 from conftest import ROBOTS
 from urdf_factory import biped, humanoid, quadruped
+
+from mer_data.base.errors import RegistryError, UnknownRobotError
+from mer_data.robots import registry
+from mer_data.robots.register import register_robot
+from mer_data.robots.registry import get_skeleton, list_robots, load_robot, robots_dir, unregister_robot
+from mer_models.cli import main
 
 
 def run(capsys, *argv):

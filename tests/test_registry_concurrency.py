@@ -10,11 +10,11 @@ import sys
 import pytest
 from urdf_factory import humanoid
 
-from mer_data import atomic
-from mer_data.atomic import owner_tag
-from mer_data.errors import RobotExistsError
-from mer_data.register import register_robot
-from mer_data.registry import known_names, load_robot, robots_dir
+from mer_data.base import atomic
+from mer_data.base.atomic import owner_tag
+from mer_data.base.errors import RobotExistsError
+from mer_data.robots.register import register_robot
+from mer_data.robots.registry import known_names, load_robot, robots_dir
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="fork and pids: Linux")
 FORK = multiprocessing.get_context("fork")
@@ -122,7 +122,7 @@ def test_force_replacement_is_never_seen_half_done(urdfs):
 
 
 def test_a_name_taken_meanwhile_is_refused_not_overwritten(urdfs, monkeypatch, tmp_path):
-    from mer_data import registry
+    from mer_data.robots import registry
 
     register_robot("bot", urdfs[1.0])
     before = load_robot("bot").skeleton.fingerprint

@@ -8,12 +8,11 @@ import tempfile
 from pathlib import Path
 
 import pytest
-
-from mer_data import registry_location
-from mer_data.register import register_robot
-from mer_data.registry import get_skeleton, known_names, robots_dir
-
 from urdf_factory import biped
+
+from mer_data.robots import location as registry_location
+from mer_data.robots.register import register_robot
+from mer_data.robots.registry import get_skeleton, known_names, robots_dir
 
 
 @pytest.fixture

@@ -8,10 +8,10 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mer_data.motion_io import Motion
-from mer_data.resample import output_times, resample
-from mer_data.rotations import quat_multiply, quat_conjugate, quat_to_axis_angle
-from mer_data.synthetic import walking_motion
+from mer_data.kinematics.rotations import quat_conjugate, quat_multiply, quat_to_axis_angle
+from mer_data.motion.lafan1 import Motion
+from mer_data.motion.resample import output_times, resample
+from mer_data.synthesis.walking import walking_motion
 
 
 def _motion(fps: float, frames: int, seed: int = 0) -> Motion:

@@ -5,30 +5,23 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from conftest import ROBOTS
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from mer_data.fk import fk_skeleton, skeleton_tensors
-from mer_data.jointmap import joint_map
-from mer_data.registry import get_skeleton
-from mer_data.rotations import axis_angle_to_matrix, rotation_angle_between
-from mer_data.samples import TrainingSample, collate
-from mer_data.scaling import (
-    ORIENTED_KEYPOINTS,
-    hip_signature,
-    orientation_calibration,
-    orientation_goals,
-    scale_reference_positions,
-    segment_ratios,
-)
-from mer_models.config import EnergyConfig, from_dict, preset
-from mer_models.energy import energy_terms
-from mer_models.kinematics import graph_from_batch
-from mer_models.metrics import window_metrics
-from mer_models.optimize import optimize_motion
-
-from conftest import ROBOTS
 from model_helpers import mixed_batch, synthetic_window
+
+from mer_data.kinematics.fk import fk_skeleton, skeleton_tensors
+from mer_data.kinematics.jointmap import joint_map
+from mer_data.kinematics.orientation import ORIENTED_KEYPOINTS, orientation_calibration, orientation_goals
+from mer_data.kinematics.rotations import axis_angle_to_matrix, rotation_angle_between
+from mer_data.kinematics.scaling import hip_signature, scale_reference_positions, segment_ratios
+from mer_data.motion.samples import TrainingSample, collate
+from mer_data.robots.registry import get_skeleton
+from mer_models.batch import graph_from_batch
+from mer_models.config import EnergyConfig, from_dict, preset
+from mer_models.retarget.metrics import window_metrics
+from mer_models.solver.energy import energy_terms
+from mer_models.solver.optimize import optimize_motion
 
 
 def _random_motion(skel, n, seed):
@@ -172,7 +165,7 @@ def test_limb_segments_keep_the_references_directions(target, seed):
 def test_orientation_term_is_zero_on_the_reference_and_positive_when_turned():
     b = mixed_batch(("g1",))
     g = graph_from_batch(b, "tgt")
-    from mer_models.energy import split_motion
+    from mer_models.solver.energy import split_motion
 
     q, bp, br = split_motion(b["target"])
     kw = {"goal_rot": b["ref_goal_rot"], "rot_mask": b["ref_rot_mask"]}
@@ -224,7 +217,7 @@ def test_checkpoints_written_before_the_orientation_term_load_without_it():
     del d["energy"]["w_ori"]
     assert from_dict(d).energy.w_ori == 0.0
     d["energy"]["w_kp_typo"] = 1.0
-    from mer_data.errors import ConfigError
+    from mer_data.base.errors import ConfigError
 
     with pytest.raises(ConfigError, match="w_kp_typo"):
         from_dict(d)
@@ -232,7 +225,7 @@ def test_checkpoints_written_before_the_orientation_term_load_without_it():
 
 def test_orientation_metric_is_the_angle_to_the_goal():
     b = mixed_batch(("g1",), frames=10)
-    from mer_models.energy import split_motion
+    from mer_models.solver.energy import split_motion
 
     q, bp, br = split_motion(b["target"])
     turned = axis_angle_to_matrix(torch.tensor([0.2, 0.0, 0.0])) @ br
@@ -242,7 +235,7 @@ def test_orientation_metric_is_the_angle_to_the_goal():
 
 
 def test_coarse_to_fine_interpolation_passes_through_the_key_frames():
-    from mer_models.optimize import _interpolate
+    from mer_models.solver.optimize import _interpolate
 
     idx = torch.tensor([0, 4, 8, 9])
     q = torch.randn(2, 4, 5, dtype=torch.float64)
@@ -285,7 +278,7 @@ def test_collate_computes_the_goals_of_a_skeleton_pair_once_for_all_its_samples(
     """collate stacks the frames of every sample sharing a (reference, target) pair into one goal
     computation: the goals equal those of each window on its own, in a batch that mixes pairs,
     an augmented target and a repeated pair split by another one."""
-    from mer_data.samples import reference_goals
+    from mer_data.motion.samples import reference_goals
 
     ref = get_skeleton("g1")
     h1, tron1 = get_skeleton("h1"), get_skeleton("tron1")

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from mer_data import rotations as R
+from mer_data.kinematics import rotations as R
 
 finite = st.floats(-1.0, 1.0, allow_nan=False)
 quats = arrays(np.float64, (4,), elements=finite).filter(lambda q: np.linalg.norm(q) > 0.1)

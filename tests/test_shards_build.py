@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from shard_helpers import CLIPS, assert_same_arrays, build, make_input, shard_arrays
 
-from mer_data.errors import ShardBuildError, UnknownRobotError
+from mer_data.base.errors import ShardBuildError, UnknownRobotError
+from mer_data.motion.windows import window_starts
 from mer_data.shards import ShardDataset, inspect_shards, open_shard
-from mer_data.windows import window_starts
 
 PARTS = ["g1-eval-00000-of-00001.h5", "g1-train-00000-of-00001.h5", "h1-eval-00000-of-00001.h5", "h1-train-00000-of-00001.h5"]
 
@@ -161,8 +161,8 @@ def test_gz_input_and_other_frame_rates(tmp_path):
     x, y = shard_arrays(tmp_path / "oa" / "g1-train-00000-of-00001.h5"), shard_arrays(tmp_path / "ob" / "g1-train-00000-of-00001.h5")
     assert x["pos"].tobytes() == y["pos"].tobytes() and list(x["source_sha256"]) != list(y["source_sha256"])
     # the same clip at 60 Hz, read with --fps 60, gives windows of the same 30 Hz frames
-    from mer_data.motion_io import write_lafan1_csv
-    from mer_data.synthetic import walking_motion
+    from mer_data.motion.lafan1 import write_lafan1_csv
+    from mer_data.synthesis.walking import walking_motion
 
     m60 = walking_motion("g1", 4.0, fps=60.0, turn_rate=0.1)
     write_lafan1_csv(tmp_path / "c" / "g1" / "walk1_subject1.csv", m60)

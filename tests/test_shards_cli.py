@@ -86,7 +86,7 @@ def test_demo(tmp_path, capsys):
     assert set(robots) <= set(rows), out
     assert "no: zero-shot" in rows["mer_demo_humanoid"] and "zero-shot (as `mer retarget --allow-unseen`): mer_demo_humanoid" in out
     ret = tmp_path / "demo" / "retarget"
-    from mer_data.registry import get_skeleton
+    from mer_data.robots.registry import get_skeleton
 
     for robot in robots:
         a = np.loadtxt(ret / f"{robot}.csv", delimiter=",")

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from shard_helpers import make_input
 
-from mer_data.atomic import owner_tag
+from mer_data.base.atomic import owner_tag
 from mer_data.shards import BuildConfig, build_shards, open_shard
 from mer_models.cli import main
 

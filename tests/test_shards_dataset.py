@@ -7,12 +7,12 @@ import pytest
 import torch
 from shard_helpers import CLIPS, build, make_input
 
-from mer_data.jointmap import joint_map
-from mer_data.registry import get_skeleton
-from mer_data.samples import collate
+from mer_data.kinematics.jointmap import joint_map
+from mer_data.motion.samples import collate
+from mer_data.motion.windows import window_starts
+from mer_data.robots.registry import get_skeleton
 from mer_data.shards import ShardDataset, open_shard
 from mer_data.skeleton import KEYPOINTS
-from mer_data.windows import window_starts
 
 
 @pytest.fixture(scope="module")

@@ -11,9 +11,9 @@ import torch
 from mcap.reader import make_reader
 from shard_helpers import assert_same_arrays, build, make_input, shard_arrays
 
-from mer_data.errors import ShardFormatError
-from mer_data.fk import fk_skeleton, skeleton_tensors
-from mer_data.rotations import quat_to_matrix
+from mer_data.base.errors import ShardFormatError
+from mer_data.kinematics.fk import fk_skeleton, skeleton_tensors
+from mer_data.kinematics.rotations import quat_to_matrix
 from mer_data.shards import ShardDataset, open_shard
 from mer_data.shards.hdf5_io import Hdf5ShardWriter
 from mer_data.shards.mcap_io import McapShardWriter
@@ -114,7 +114,7 @@ def test_mcap_is_a_foxglove_scene_of_the_skeleton(both):
     st = skeleton_tensors(skel, torch.float64)
     q = torch.from_numpy(shard.row("q", 0).astype(np.float64))
     rv = torch.from_numpy(shard.row("base_rotvec", 0).astype(np.float64))
-    from mer_data.rotations import axis_angle_to_quat
+    from mer_data.kinematics.rotations import axis_angle_to_quat
 
     fk, _ = fk_skeleton(st, q, torch.from_numpy(pos[:, 0].astype(np.float64)), base_quat=axis_angle_to_quat(rv))
     np.testing.assert_allclose(fk.numpy(), pos, atol=1e-5)

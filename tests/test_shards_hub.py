@@ -113,8 +113,8 @@ def test_push_then_read_back_through_the_hub_cache_online_and_offline(synthetic_
         assert set(files) == {".gitattributes", "README.md", "mer_meta.json", "g1-train-00000-of-00001.h5"}
         assert files["g1-train-00000-of-00001.h5"].data == (synthetic_shards / "g1-train-00000-of-00001.h5").read_bytes()
         assert SHARDS_REPO not in hub.repos  # a dataset repository, not a model
-        from huggingface_hub import DatasetCard
         from hub_server import validate_metadata
+        from huggingface_hub import DatasetCard
 
         card = DatasetCard(files["README.md"].data.decode())  # the client's parser, on what was pushed
         assert card.data.task_categories == ["robotics"] and card.data.license == "apache-2.0"
@@ -144,10 +144,10 @@ def test_push_then_read_back_through_the_hub_cache_online_and_offline(synthetic_
 
 
 def test_push_refuses_lafan1_derived_shards(tmp_path):
-    from mer_data.errors import ShardError
-    from mer_data.shards import push_shards
-
     from shard_helpers import build
+
+    from mer_data.base.errors import ShardError
+    from mer_data.shards import push_shards
 
     out = tmp_path / "out"
     build(make_input(tmp_path / "in", robots=("g1",), clips=CLIPS), out, robots=("g1",), split="all", targets=("g1",), augment=0)
@@ -156,7 +156,7 @@ def test_push_refuses_lafan1_derived_shards(tmp_path):
 
 
 def test_hf_dataset_urls_are_checked():
-    from mer_data.errors import ShardFormatError
+    from mer_data.base.errors import ShardFormatError
     from mer_data.shards.hub import parse_hf_url
 
     assert parse_hf_url("hf://datasets/lab/x") == ("lab/x", None)

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 import torch
 
-from mer_data.fk import fk_skeleton, skeleton_tensors
-from mer_data.motion_io import read_lafan1_csv
-from mer_data.registry import get_skeleton
-from mer_data.scaling import body_part_scales
+from mer_data.kinematics.fk import fk_skeleton, skeleton_tensors
+from mer_data.kinematics.scaling import body_part_scales
+from mer_data.motion.lafan1 import read_lafan1_csv
+from mer_data.motion.windows import window_starts
+from mer_data.robots.registry import get_skeleton
 from mer_data.shards import BuildConfig, ShardDataset, build_shards, open_shard
-from mer_data.windows import window_starts
 
 CLIPS = ("dance1_subject1", "fallAndGetUp1_subject1", "fight1_subject2", "walk1_subject1")
 
@@ -70,7 +70,7 @@ def test_real_windows_match_fk_and_g1_h1_pair_up(real, lafan1_dir):
 @pytest.mark.slow
 def test_g1_travels_about_0_74_of_h1(lafan1_dir):
     """Design notes: root paths are scaled per robot, G1 ~0.74x H1. mer's alpha_root (feet kept on the
-    ground, mer_data.scaling) is an independent estimate of the same ratio from the two URDFs alone."""
+    ground, mer_data.kinematics.scaling) is an independent estimate of the same ratio from the two URDFs alone."""
     num = den = 0.0
     for clip in ("walk1_subject1", "run1_subject2"):
         g = read_lafan1_csv(lafan1_dir / "g1" / f"{clip}.csv", "g1").base_pos[:, :2]

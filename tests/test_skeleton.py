@@ -7,17 +7,16 @@ import json
 import numpy as np
 import pytest
 import torch
-
-from mer_data.fk import fk_skeleton, skeleton_tensors
-from mer_data.registry import load_robot
-from mer_data.robot_card import KeypointSpec, RobotCard
-from mer_data.skeleton import KEYPOINTS, PSI_CHILD, PSI_PARENT, PSI_SELF, Skeleton
-from mer_data.skeleton_builder import build_skeleton
-from mer_data.urdf import parse_urdf_bytes
-
 from conftest import ROBOTS
 from oracles import yourdfpy_positions
 from urdf_factory import Robot, humanoid
+
+from mer_data.kinematics.fk import fk_skeleton, skeleton_tensors
+from mer_data.robots.builder import build_skeleton
+from mer_data.robots.card import KeypointSpec, RobotCard
+from mer_data.robots.registry import load_robot
+from mer_data.robots.urdf import parse_urdf_bytes
+from mer_data.skeleton import KEYPOINTS, PSI_CHILD, PSI_PARENT, PSI_SELF, Skeleton
 
 EXPECTED_DOF = {"g1": 29, "h1": 19, "h1_2": 27, "atlas": 30, "oli": 31, "tron1": 8, "talos": 30, "valkyrie": 32}
 

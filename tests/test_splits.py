@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from mer_data.errors import SplitError
-from mer_data.splits import EVAL, TRAIN, clip_category, resolve_split
+from mer_data.base.errors import SplitError
+from mer_data.motion.splits import EVAL, TRAIN, clip_category, resolve_split
 
 LAFAN1_CLIPS = [
     "dance1_subject1", "dance1_subject2", "dance2_subject1", "fallAndGetUp1_subject1", "fallAndGetUp2_subject2",

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from conftest import ROBOTS
 
-from mer_data.registry import get_skeleton
+from mer_data.robots.registry import get_skeleton
 from mer_data.synthesis import clip_seed, ground_heights, synthesize
 from mer_data.synthesis.quat import qmatrix
 from mer_data.synthesis.signals import soft_clamp

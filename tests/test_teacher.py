@@ -9,19 +9,18 @@ import h5py
 import numpy as np
 import pytest
 import torch
+from model_helpers import MICRO, micro_run
 
-from mer_data.errors import MerError, ShardFormatError
-from mer_data.samples import collate
+from mer_data.base.errors import MerError, ShardFormatError
+from mer_data.motion.samples import collate
 from mer_data.shards import ShardDataset
 from mer_data.shards.teacher import teacher_path
 from mer_models.cli import main
 from mer_models.config import EnergyConfig
-from mer_models.inference import optimize_batch
-from mer_models.model import RetargetModel
-from mer_models.teacher import SolverConfig, solve_shards
-from mer_models.train import clean_samples
-
-from model_helpers import MICRO, micro_run
+from mer_models.diffusion.model import RetargetModel
+from mer_models.retarget.inference import optimize_batch
+from mer_models.training.teacher import SolverConfig, solve_shards
+from mer_models.training.train import clean_samples
 
 GN = 4  # iterations: enough to test the plumbing quickly
 
@@ -59,7 +58,7 @@ def test_teacher_sample_is_the_optimisers_solution(solved):
     assert all(s.teacher is not None for s in samples) and any(s.provenance["augmented"] for s in samples)
     batch = collate(samples)
     again = optimize_batch(EnergyConfig(), batch, gn_iters=GN)
-    from mer_models.kinematics import batch_features, graph_from_batch
+    from mer_models.batch import batch_features, graph_from_batch
 
     feats = batch_features(graph_from_batch(batch, "tgt", "cpu"), again["q"], again["base_pos"], again["base_rot"])
     torch.testing.assert_close(batch["teacher"], feats, atol=2e-4, rtol=0)
@@ -87,7 +86,7 @@ def test_training_reads_x_from_the_teacher(solved):
 def test_a_killed_solve_resumes_and_gives_the_same_file(solved, tmp_path, monkeypatch):
     out = tmp_path / "s"
     shutil.copytree(solved, out, ignore=shutil.ignore_patterns("teacher"))
-    import mer_models.teacher as teacher
+    import mer_models.training.teacher as teacher
 
     calls = {"n": 0}
     real = teacher.optimize_batch
@@ -179,7 +178,7 @@ def test_the_teacher_solves_with_the_schedule_it_records(solved, tmp_path):
     """``SolverConfig.optimizer_version`` is recorded in the teacher file and is what runs: version 1
     solves with the Jacobi fine stage (the teachers written before version 2), not the default
     whole-window one; other versions are refused."""
-    from mer_models.optimize import OPTIMIZER_VERSION
+    from mer_models.solver.optimize import OPTIMIZER_VERSION
 
     assert SolverConfig().optimizer_version == OPTIMIZER_VERSION == 2
     with pytest.raises(MerError, match="optimizer_version 3"):
@@ -192,7 +191,7 @@ def test_the_teacher_solves_with_the_schedule_it_records(solved, tmp_path):
     assert ds.teachers[0].solver["optimizer_version"] == 1
     idx = [i for i in range(len(ds)) if ds[i].provenance["target"] == "h1"][:3]
     batch = collate([ds[i] for i in idx])
-    from mer_models.kinematics import batch_features, graph_from_batch
+    from mer_models.batch import batch_features, graph_from_batch
 
     g = graph_from_batch(batch, "tgt", "cpu")
 

@@ -8,12 +8,11 @@ from pathlib import Path
 
 import pytest
 import torch
+from model_helpers import MICRO, mixed_batch
 
 from mer_models.config import SamplerConfig
-from mer_models.inference import sample_conditions
-from mer_models.model import RetargetModel
-
-from model_helpers import MICRO, mixed_batch
+from mer_models.diffusion.model import RetargetModel
+from mer_models.retarget.inference import sample_conditions
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
 from overfit_probe import ffn_width, widen_ffn  # noqa: E402

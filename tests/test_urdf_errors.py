@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from mer_data.errors import (
+from mer_data.base.errors import (
     BrokenReferenceError,
     KinematicTreeError,
     MalformedURDFError,
@@ -13,11 +13,11 @@ from mer_data.errors import (
     UnsafeURDFError,
     UnsupportedJointError,
 )
-from mer_data.registry import load_robot
-from mer_data.robot_card import KeypointSpec, RobotCard
+from mer_data.robots.builder import build_skeleton
+from mer_data.robots.card import KeypointSpec, RobotCard
+from mer_data.robots.registry import load_robot
+from mer_data.robots.urdf import load_urdf, parse_urdf_bytes
 from mer_data.skeleton import KEYPOINTS
-from mer_data.skeleton_builder import build_skeleton
-from mer_data.urdf import load_urdf, parse_urdf_bytes
 
 HEAD = '<?xml version="1.0"?>\n<robot name="r">\n'
 

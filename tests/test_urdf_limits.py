@@ -7,11 +7,11 @@ import time
 import numpy as np
 import pytest
 
-from mer_data.errors import MalformedURDFError, UnsafeURDFError
-from mer_data.keypoint_proposal import propose_keypoints
-from mer_data.robot_card import RobotCard
-from mer_data.skeleton_builder import build_skeleton
-from mer_data.urdf import load_urdf, parse_urdf_bytes
+from mer_data.base.errors import MalformedURDFError, UnsafeURDFError
+from mer_data.robots.builder import build_skeleton
+from mer_data.robots.card import RobotCard
+from mer_data.robots.keypoints import propose_keypoints
+from mer_data.robots.urdf import load_urdf, parse_urdf_bytes
 
 
 def chain(n: int, *, origin: str = "0 0 0.01", limit: str = 'lower="-1" upper="1"') -> bytes:

@@ -7,18 +7,17 @@ import subprocess
 import numpy as np
 import pytest
 import torch
+from model_helpers import synthetic_csv
 from PIL import Image
 
-from mer_data.errors import MerError, OutputError
-from mer_data.registry import get_skeleton
-from mer_data.rotations import quat_to_matrix
-from mer_models import video as video_mod
+from mer_data.base.errors import MerError, OutputError
+from mer_data.kinematics.rotations import quat_to_matrix
+from mer_data.robots.registry import get_skeleton
 from mer_models.cli import main
-from mer_models.synthetic import synthetic_motion
-from mer_models.video import check_video_path, find_ffmpeg, video_frame_indices, write_video
-from mer_models.writers import TargetMotion
-
-from model_helpers import synthetic_csv
+from mer_models.export import video as video_mod
+from mer_models.export.video import check_video_path, find_ffmpeg, video_frame_indices, write_video
+from mer_models.export.writers import TargetMotion
+from mer_models.training.synthetic import synthetic_motion
 
 SIZE = (320, 160)
 

@@ -13,10 +13,10 @@ import re
 import numpy as np
 import pytest
 
-from mer_data.keypoint_proposal import propose_robot
-from mer_data.register import register_robot
+from mer_data.robots.keypoints import propose_robot
+from mer_data.robots.register import register_robot
+from mer_data.robots.urdf import load_urdf
 from mer_data.skeleton import KEYPOINTS
-from mer_data.urdf import load_urdf
 
 WILD = (
     "bolt", "hyq", "icub", "limx_p441a", "romeo", "solo12", "tron1_wheelfoot", "unitree_a1", "unitree_b2",

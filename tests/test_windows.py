@@ -8,13 +8,13 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mer_data.features import finite_difference, motion_features
-from mer_data.fk import fk_skeleton, skeleton_tensors
-from mer_data.motion_io import read_lafan1_csv
-from mer_data.registry import get_skeleton
+from mer_data.kinematics.fk import fk_skeleton, skeleton_tensors
+from mer_data.motion.features import finite_difference, motion_features
+from mer_data.motion.lafan1 import read_lafan1_csv
+from mer_data.motion.windows import make_windows, window_features, window_starts
+from mer_data.robots.registry import get_skeleton
 from mer_data.shards import BuildConfig
-from mer_data.synthetic import walking_motion
-from mer_data.windows import make_windows, window_features, window_starts
+from mer_data.synthesis.walking import walking_motion
 
 
 @settings(max_examples=300, deadline=None)

@@ -3,24 +3,22 @@ for every built-in robot as source and target, loads offline and retargets with 
 
 from __future__ import annotations
 
-
 import importlib.util
 import json
 import sys
 
 import numpy as np
 import pytest
-
-from mer_data.registry import BUILTIN_ROBOTS, get_skeleton
-from mer_models import zoo
-from mer_models.cli import main
-from mer_models.config import from_dict, preset
-from mer_models.zoo.fromckpt import card_from_checkpoint
-from mer_models.zoo.registry import Registry, bundled_dir
-
 from conftest import REPO
 from model_helpers import synthetic_csv
 from zoo_helpers import make_checkpoint
+
+from mer_data.robots.registry import BUILTIN_ROBOTS, get_skeleton
+from mer_models import zoo
+from mer_models.cli import main
+from mer_models.config import from_dict, preset
+from mer_models.hub.fromckpt import card_from_checkpoint
+from mer_models.hub.registry import Registry, bundled_dir
 
 
 def _train_base():
@@ -138,8 +136,8 @@ def test_retarget_with_no_model_offline_between_builtin_robots(tmp_path, capsys,
 @pytest.mark.parametrize("source, target", [("talos", "tron1"), ("tron1", "atlas"), ("valkyrie", "h1_2"), ("oli", "g1")])
 def test_the_default_model_retargets_from_robots_without_a_csv_layout(monkeypatch, source, target):
     """Sources the command line cannot read from a CSV: their motion as features, through the library."""
-    from mer_models.retarget import retarget_features, source_features
-    from mer_models.synthetic import synthetic_motion
+    from mer_models.retarget.clip import retarget_features, source_features
+    from mer_models.training.synthetic import synthetic_motion
 
     monkeypatch.setenv("HF_HUB_OFFLINE", "1")
     ckpt = zoo.load(zoo.DEFAULT_MODEL)
@@ -153,8 +151,8 @@ def test_the_default_model_retargets_from_robots_without_a_csv_layout(monkeypatc
 
 def test_the_library_still_needs_a_model_for_diffusion(tmp_path):
     """Only the command line falls back to the bundled model (and says so); the library never picks one."""
-    from mer_data.errors import MerError
-    from mer_models.retarget import retarget_file
+    from mer_data.base.errors import MerError
+    from mer_models.retarget.clip import retarget_file
 
     with pytest.raises(MerError, match="--method optimize"):
         retarget_file(synthetic_csv(tmp_path / "w.csv", frames=10, seed=5), "g1", "h1", out_csv=tmp_path / "o.csv")
@@ -164,7 +162,7 @@ def test_the_library_still_needs_a_model_for_diffusion(tmp_path):
 def test_bundling_refuses_a_checkpoint_that_is_not_for_every_builtin_robot(tmp_path):
     """tools/train_base.py bundles only a checkpoint with all eight robots as targets and references,
     and touches nothing in the package when it refuses."""
-    from mer_data.errors import PublishError
+    from mer_data.base.errors import PublishError
 
     tb = _train_base()
     before = {p.name: p.read_bytes() for p in (bundled_dir() / zoo.DEFAULT_MODEL).iterdir()}
@@ -191,9 +189,9 @@ def test_bundling_refuses_weights_not_trained_on_synthetic_motion(tmp_path):
     """A run for every built-in robot whose shards were built from motion files (LAFAN1's layout,
     here generated in code) is refused: only weights trained on synthetic motion may ship; so is a
     run whose shards cannot be opened to check. The package is left untouched."""
-    from mer_data.errors import PublishError
-
     from shard_helpers import build, make_input
+
+    from mer_data.base.errors import PublishError
 
     tb = _train_base()
     before = {p.name: p.read_bytes() for p in (bundled_dir() / zoo.DEFAULT_MODEL).iterdir()}

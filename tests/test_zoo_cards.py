@@ -7,15 +7,15 @@ from pathlib import Path
 
 import pytest
 import yaml
-
-from mer_data.errors import ModelZooError, PublishError
-from mer_models.zoo.card import FileRecord, ModelCard, PastRevision, parse_card, read_card
-from mer_models.zoo.catalogue import CATALOGUE, planned_card
-from mer_models.zoo.fromckpt import card_from_checkpoint, infer_dataset
-from mer_models.zoo.names import validate_filename, validate_model_name, validate_repo_id, validate_revision
-from mer_models.zoo.registry import packaged_cards_dir, source_cards_dir
-from mer_models.zoo.render import render_card
 from zoo_helpers import make_checkpoint
+
+from mer_data.base.errors import ModelZooError, PublishError
+from mer_models.hub.card import FileRecord, ModelCard, PastRevision, parse_card, read_card
+from mer_models.hub.catalogue import CATALOGUE, planned_card
+from mer_models.hub.fromckpt import card_from_checkpoint, infer_dataset
+from mer_models.hub.names import validate_filename, validate_model_name, validate_repo_id, validate_revision
+from mer_models.hub.registry import packaged_cards_dir, source_cards_dir
+from mer_models.hub.render import render_card
 
 REPO = Path(__file__).resolve().parents[1]
 C1, C2 = "a" * 40, "0123456789abcdef0123456789abcdef01234567"
@@ -183,10 +183,10 @@ def test_card_from_checkpoint_records_its_metadata(tmp_path):
 # ---- Hub conventions: the metadata as huggingface_hub and the Hub read it ----------------------------------------
 
 def test_card_metadata_parses_with_huggingface_hubs_own_parser_and_passes_the_hub_checks():
+    from hub_server import validate_metadata
     from huggingface_hub import ModelCard as HubModelCard
     from huggingface_hub.repocard import metadata_load
 
-    from hub_server import validate_metadata
     from mer_data.shards.sources import LAFAN1_REPO
 
     for path in sorted((REPO / "cards" / "models").glob("*.md")):
@@ -217,9 +217,8 @@ def test_the_hub_checks_can_fail():
 
 
 def test_dataset_cards_parse_with_huggingface_hubs_own_parser_and_pass_the_hub_checks():
-    from huggingface_hub import DatasetCard
-
     from hub_server import validate_metadata
+    from huggingface_hub import DatasetCard
 
     for path in sorted((REPO / "cards" / "datasets").glob("*.md")):
         card = DatasetCard.load(path)

@@ -9,9 +9,10 @@ import sys
 from pathlib import Path
 
 from hub_server import HubServer
-from mer_models.cli import main
-from mer_models.zoo.card import read_card
 from zoo_helpers import TOKEN, client_env, make_checkpoint
+
+from mer_models.cli import main
+from mer_models.hub.card import read_card
 
 REPO = Path(__file__).resolve().parents[1]
 

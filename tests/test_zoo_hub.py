@@ -13,12 +13,12 @@ import shutil
 from pathlib import Path
 
 import pytest
-
 from hub_server import HubServer
-from mer_models.zoo.card import read_card
-from mer_models.zoo.registry import write_card
 from zoo_helpers import TOKEN, client_env, make_checkpoint
 from zoo_worker import run_worker
+
+from mer_models.hub.card import read_card
+from mer_models.hub.registry import write_card
 
 REPO_ID = "lab/tiny-synth"
 NAME = "tiny-synth"

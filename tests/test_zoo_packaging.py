@@ -56,7 +56,7 @@ def test_list_models_works_from_the_installed_wheel(wheel, tmp_path):
     zipfile.ZipFile(wheel).extractall(site)
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     env.update(PYTHONPATH=str(site), MER_HOME=str(tmp_path / "home"), HF_HUB_OFFLINE="1")
-    code = ("import json, mer_models.zoo as z, mer_models.zoo.registry as r;"
+    code = ("import json, mer_models.zoo as z, mer_models.hub.registry as r;"
             "print(json.dumps([str(r.builtin_cards_dir()), [[e.name, z.where(e)] for e in z.list_models()]]))")
     proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, cwd=str(tmp_path), timeout=120)
     assert proc.returncode == 0, proc.stderr
@@ -69,7 +69,7 @@ def test_the_installed_wheel_loads_and_retargets_with_the_default_model_offline(
     """A fresh install: the bundled weights are in the wheel, load by name with no network and no
     Hub cache, and `mer retarget` with no --model (the default model) runs from the installed package
     (not the checkout)."""
-    from mer_data.registry import BUILTIN_ROBOTS
+    from mer_data.robots.registry import BUILTIN_ROBOTS
     from mer_models.zoo import DEFAULT_MODEL
 
     names = set(zipfile.ZipFile(wheel).namelist())
@@ -86,8 +86,8 @@ def test_the_installed_wheel_loads_and_retargets_with_the_default_model_offline(
     init, folder, source, verified, targets = json.loads(proc.stdout)
     assert init.startswith(str(site)) and folder == str(site / "mer_models" / "bundled" / DEFAULT_MODEL)
     assert (source, verified) == ("bundled", "card") and sorted(targets) == sorted(BUILTIN_ROBOTS)
-    make_csv = ("import sys, torch; from mer_data.registry import get_skeleton; from mer_data.rotations import quat_to_matrix;"
-                "from mer_models.synthetic import synthetic_motion; from mer_models.writers import TargetMotion, write_csv;"
+    make_csv = ("import sys, torch; from mer_data.robots.registry import get_skeleton; from mer_data.kinematics.rotations import quat_to_matrix;"
+                "from mer_models.training.synthetic import synthetic_motion; from mer_models.export.writers import TargetMotion, write_csv;"
                 "s = get_skeleton('g1'); m = synthetic_motion(s, 30, seed=1);"
                 "write_csv(sys.argv[1], TargetMotion(s, 30.0, m['q'], m['base_pos'], quat_to_matrix(torch.from_numpy(m['base_quat'])).numpy()))")
     subprocess.run([sys.executable, "-c", make_csv, str(tmp_path / "g1.csv")], env=env, check=True, cwd=str(tmp_path), timeout=120)

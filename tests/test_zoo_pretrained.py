@@ -12,15 +12,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from safetensors.torch import load, load_file, save_file
-
 from hub_server import HubServer
-from mer_data.errors import CheckpointError, ModelZooError
-from mer_models import RetargetModel
-from mer_models.checkpoint import load_checkpoint, save_checkpoint
 from model_helpers import MICRO, micro_run
+from safetensors.torch import load, load_file, save_file
 from zoo_helpers import TOKEN, client_env
 from zoo_worker import model_outputs, run_worker
+
+from mer_data.base.errors import CheckpointError, ModelZooError
+from mer_models import RetargetModel
+from mer_models.hub.checkpoint_files import save_checkpoint
+from mer_models.zoo.checkpoint import load_checkpoint
 
 REPO_ID = "lab/mer-micro"
 

@@ -6,12 +6,12 @@ import re
 from pathlib import Path
 
 import pytest
-
-from mer_data.errors import ChecksumError, ModelNotAvailableError, ModelZooError, PublishError, UnknownModelError
-from mer_models import zoo
-from mer_models.zoo.fromckpt import card_from_checkpoint
-from mer_models.zoo.registry import Registry, write_card
 from zoo_helpers import make_checkpoint
+
+from mer_data.base.errors import ChecksumError, ModelNotAvailableError, ModelZooError, PublishError, UnknownModelError
+from mer_models import zoo
+from mer_models.hub.fromckpt import card_from_checkpoint
+from mer_models.hub.registry import Registry, write_card
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -123,7 +123,7 @@ _FORBIDDEN = [
 def test_no_pickle_and_no_remote_code_anywhere_in_the_package():
     import yaml
 
-    from mer_data import safe_io
+    from mer_data.base import safe_io
 
     assert issubclass(safe_io._NoAliasLoader, yaml.SafeLoader)  # the one other loader allowed
     offenders = []

@@ -26,8 +26,8 @@ def _op(spec: dict):
     from huggingface_hub import constants
 
     from mer_models import zoo
-    from mer_models.zoo import hub
-    from mer_models.zoo.integrity import sha256_file
+    from mer_models.hub import client as hub
+    from mer_models.hub.integrity import sha256_file
 
     op = spec["op"]
     if op == "constants":

@@ -22,9 +22,9 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from mer_data.fk import fk_skeleton, skeleton_tensors  # noqa: E402
-from mer_data.registry import load_robot  # noqa: E402
-from mer_data.rotations import quat_to_matrix  # noqa: E402
+from mer_data.kinematics.fk import fk_skeleton, skeleton_tensors  # noqa: E402
+from mer_data.kinematics.rotations import quat_to_matrix  # noqa: E402
+from mer_data.robots.registry import load_robot  # noqa: E402
 
 
 def pk_chain(urdf_path: Path):

@@ -3,7 +3,7 @@
 What it measures, per target robot, on one LAFAN1 clip of the source robot (default: G1,
 ``dance1_subject2``, the first 1800 frames = 60 s at 30 Hz), all in one run on the same machine:
 
-* **mer**: ``mer_models.retarget.retarget_features(feats, source, target, method="optimize")``,
+* **mer**: ``mer_models.retarget.clip.retarget_features(feats, source, target, method="optimize")``,
   the whole call timed (reference preparation, batching, Levenberg-Marquardt over the whole motion),
   best wall time of ``--repeat`` runs after an untimed warm-up call on 16 frames. Its ``reference_points`` (F, K, 3), the body-part-scaled
   key-point goals in the world frame, are the targets of both methods.
@@ -18,13 +18,13 @@ machine inflate the timings, mer's (one long batched call) and mink's (many shor
 raise ``--repeat`` when it is high.
 
 Printed per (target, method): frames, seconds, frames/s, the mean key-point position error against
-``reference_points`` [m] (mer's FK, ``mer_data.fk.fk_skeleton``, of each method's angles and
+``reference_points`` [m] (mer's FK, ``mer_data.kinematics.fk.fk_skeleton``, of each method's angles and
 base pose), mer's ``sequence_metrics`` of the result (``g_mpbpe`` [m], ``jerk_frame`` [rad/frame^3],
 ``limit_violation`` [fraction of frames], plus the largest limit excess [rad]) and the ratio of
 mer's frames/s to mink's (> 1: mer is faster). For mer the key-point error and ``g_mpbpe`` measure
 the same thing and agree (checked; a mismatch is logged). The two methods do not minimise quite the
 same objective: mer's energy also has base/feet/hand orientation terms and a temporal smoothness
-prior (``mer_models/ik.py``); mink tracks positions only, frame by frame.
+prior (``mer_models/solver/ik.py``); mink tracks positions only, frame by frame.
 
 The command (2 threads: ``torch.set_num_threads`` and OMP/BLAS for the mink side)::
 
@@ -46,8 +46,8 @@ import logging
 import math
 import os
 import sys
-from dataclasses import replace
 import time
+from dataclasses import replace
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
@@ -85,14 +85,14 @@ import torch  # noqa: E402
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tools"))
 
-from mer_data.jointmap import keypoint_pairs  # noqa: E402
-from mer_data.motion_io import read_lafan1_csv  # noqa: E402
-from mer_data.registry import get_skeleton  # noqa: E402
-from mer_data.rotations import axis_angle_to_matrix, matrix_to_quat, quat_to_matrix  # noqa: E402
+from mer_data.kinematics.jointmap import keypoint_pairs  # noqa: E402
+from mer_data.kinematics.rotations import axis_angle_to_matrix, matrix_to_quat, quat_to_matrix  # noqa: E402
+from mer_data.motion.lafan1 import read_lafan1_csv  # noqa: E402
+from mer_data.robots.registry import get_skeleton  # noqa: E402
 from mer_data.skeleton import Skeleton  # noqa: E402
 from mer_models.config import EnergyConfig  # noqa: E402
-from mer_models.retarget import MODEL_FPS, retarget_features, sequence_metrics, source_features  # noqa: E402
-from mer_models.writers import TargetMotion  # noqa: E402
+from mer_models.export.writers import TargetMotion  # noqa: E402
+from mer_models.retarget.clip import MODEL_FPS, retarget_features, sequence_metrics, source_features  # noqa: E402
 
 log = logging.getLogger("bench_retarget")
 
@@ -230,9 +230,8 @@ def main() -> None:
 
     try:
         import mink  # noqa: F401
-        import mujoco  # noqa: F401
-
         import mink_peer
+        import mujoco  # noqa: F401
 
         have_mink = True
     except ImportError as exc:
@@ -306,8 +305,8 @@ def bench_dataset(data_dir: Path, source: str, targets: list[str], n_clips: int,
     import shutil
     import tempfile
 
-    from mer_models.dataset_retarget import retarget_dataset
-    from mer_models.retarget import retarget_file
+    from mer_models.retarget.clip import retarget_file
+    from mer_models.retarget.dataset import retarget_dataset
 
     files = sorted((data_dir / source).glob("*.csv"))[:n_clips]
     with tempfile.TemporaryDirectory() as tmp:

@@ -1,7 +1,7 @@
 """Benchmark: EDM Heun with few steps against the 1000-step sampler, in the same run.
 
 Prints, per sampler: network evaluations (NFE), milliseconds per 60-frame window, and the metrics
-of the retargeted windows (mer_models.metrics), plus the NFE ratio and the relative metric change
+of the retargeted windows (mer_models.retarget.metrics), plus the NFE ratio and the relative metric change
 against the 1000-step reference. Goal: >= 30x fewer evaluations with metrics within 5 %.
 
     PYTHONPATH=. python tools/bench_sampling.py --model /tmp/mer-tiny --input /path/to/lafan1 \
@@ -19,15 +19,15 @@ import time
 import numpy as np
 import torch
 
-from mer_data.jointmap import joint_map
-from mer_data.registry import get_skeleton
-from mer_data.samples import TrainingSample, collate
-from mer_models.checkpoint import load_checkpoint
+from mer_data.kinematics.jointmap import joint_map
+from mer_data.motion.samples import TrainingSample, collate
+from mer_data.robots.registry import get_skeleton
 from mer_models.config import SamplerConfig
-from mer_models.evaluate import EvalOptions, collect_windows
-from mer_models.inference import sample_conditions
-from mer_models.metrics import summarize, window_metrics
-from mer_models.synthetic import SyntheticDataset
+from mer_models.retarget.evaluate import EvalOptions, collect_windows
+from mer_models.retarget.inference import sample_conditions
+from mer_models.retarget.metrics import summarize, window_metrics
+from mer_models.training.synthetic import SyntheticDataset
+from mer_models.zoo.checkpoint import load_checkpoint
 
 KEYS = ("g_mpbpe", "mpboe", "mpbve", "jerk")
 

@@ -38,13 +38,13 @@ sys.path.insert(0, str(ROOT))
 import h5py  # noqa: E402
 import torch  # noqa: E402
 
-from mer_data.csv_numeric import parse_numeric_csv  # noqa: E402
-from mer_data.fk import fk_skeleton, skeleton_tensors  # noqa: E402
-from mer_data.motion_io import lafan1_columns  # noqa: E402
-from mer_data.registry import get_skeleton, list_robots  # noqa: E402
-from mer_data.rotations import quat_to_axis_angle  # noqa: E402
+from mer_data.kinematics.fk import fk_skeleton, skeleton_tensors  # noqa: E402
+from mer_data.kinematics.rotations import quat_to_axis_angle  # noqa: E402
+from mer_data.motion.csv_numeric import parse_numeric_csv  # noqa: E402
+from mer_data.motion.lafan1 import lafan1_columns  # noqa: E402
+from mer_data.motion.windows import window_starts  # noqa: E402
+from mer_data.robots.registry import get_skeleton, list_robots  # noqa: E402
 from mer_data.shards import BuildConfig, build_shards  # noqa: E402
-from mer_data.windows import window_starts  # noqa: E402
 
 
 def naive_clip(path: Path, robot: str, h5: h5py.File, window: int = 60) -> int:

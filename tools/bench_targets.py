@@ -27,9 +27,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mer_data.registry import get_skeleton
-from mer_models.checkpoint import resolve_model
-from mer_models.retarget import MODEL_FPS, retarget_features, retarget_features_many, sequence_metrics, source_features
+from mer_data.robots.registry import get_skeleton
+from mer_models.retarget.clip import MODEL_FPS, retarget_features, retarget_features_many, sequence_metrics, source_features
+from mer_models.zoo.checkpoint import resolve_model
 
 ALL = ["g1", "h1", "h1_2", "atlas", "oli", "tron1", "talos", "valkyrie"]
 
@@ -37,7 +37,7 @@ ALL = ["g1", "h1", "h1_2", "atlas", "oli", "tron1", "talos", "valkyrie"]
 def source_motion(args) -> tuple[np.ndarray, str]:
     src = get_skeleton(args.source)
     if args.input:
-        from mer_data.motion_io import read_lafan1_csv
+        from mer_data.motion.lafan1 import read_lafan1_csv
 
         folder = Path(args.input) / args.source
         path = folder / f"{args.clip}.csv"
@@ -45,7 +45,7 @@ def source_motion(args) -> tuple[np.ndarray, str]:
             m = read_lafan1_csv(path, args.source)
             feats = source_features(m.base_pos, m.base_quat, m.node_angles(src), src, MODEL_FPS)[: args.frames]
             return feats, f"{path} (first {len(feats)} frames)"
-    from mer_models.synthetic import _features, synthetic_motion
+    from mer_models.training.synthetic import _features, synthetic_motion
 
     return _features(src, synthetic_motion(src, args.frames, seed=7), MODEL_FPS), f"synthetic {args.source} motion, seed 7"
 

@@ -5,7 +5,7 @@ against ungrouped batches, the same trainer, shards and configuration, in one ru
         [--steps 6] [--rounds 2] [--threads 1] [--bf16] [--init mer_models/bundled/mer-base]
 
 Each round trains every grouping for ``--steps`` steps from the same weights (the real trainer,
-:func:`mer_models.train.train`, logging every step); a step's time is the gap between two log
+:func:`mer_models.training.train.train`, logging every step); a step's time is the gap between two log
 records (load + collate + conditions + teacher + forward + energy + backward + AdamW). The first
 step of each run is left out (allocation, caches). Rounds alternate the groupings so that a busy
 neighbour on a shared machine slows them alike; the median over all rounds is reported with its
@@ -28,7 +28,7 @@ sys.path.insert(0, str(REPO))
 
 
 def step_times(run, ds, steps: int, init: Path | None, bf16: bool = False) -> list[float]:
-    from mer_models.train import train
+    from mer_models.training.train import train
 
     stamps: list[float] = []
     with tempfile.TemporaryDirectory() as tmp:

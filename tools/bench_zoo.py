@@ -65,11 +65,11 @@ def main() -> int:
     for v in ("HF_HUB_OFFLINE", "TRANSFORMERS_OFFLINE"):
         os.environ.pop(v, None)
 
-    (_, t_import) = _timed(lambda: (__import__("torch"), __import__("mer_models.checkpoint"), __import__("mer_models.zoo")))
+    (_, t_import) = _timed(lambda: (__import__("torch"), __import__("mer_models.zoo.checkpoint"), __import__("mer_models.zoo")))
     from mer_models import zoo
-    from mer_models.checkpoint import load_checkpoint
-    from mer_models.zoo.integrity import sha256_file
-    from mer_models.zoo.registry import Registry
+    from mer_models.hub.integrity import sha256_file
+    from mer_models.hub.registry import Registry
+    from mer_models.zoo.checkpoint import load_checkpoint
 
     name = args.name or zoo.DEFAULT_MODEL
     ckpt, t_first = _timed(lambda: zoo.load(name))

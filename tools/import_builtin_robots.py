@@ -21,10 +21,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from mer_data.robot_card import DEFAULT_BODY_PARTS, KeypointSpec, RobotCard, dump_card  # noqa: E402
+from mer_data.robots.builder import build_skeleton, zero_pose_link_transforms  # noqa: E402
+from mer_data.robots.card import DEFAULT_BODY_PARTS, KeypointSpec, RobotCard, dump_card  # noqa: E402
+from mer_data.robots.urdf import load_urdf  # noqa: E402
 from mer_data.skeleton import KEYPOINTS  # noqa: E402
-from mer_data.skeleton_builder import build_skeleton, zero_pose_link_transforms  # noqa: E402
-from mer_data.urdf import load_urdf  # noqa: E402
 
 META = {
     "g1": ("Unitree G1, 29 DoF, rev 1.0", "BSD-3-Clause",

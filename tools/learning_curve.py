@@ -3,7 +3,7 @@
     PYTHONPATH=$PWD python tools/learning_curve.py --config base --shards SHARDS --out runs/base \\
         --eval-input ../shared/data/lafan1 --chunk-steps 200 --max-minutes 60 [--bf16]
 
-Training is the ordinary trainer (:func:`mer_models.train.train`), resumed exactly after every
+Training is the ordinary trainer (:func:`mer_models.training.train.train`), resumed exactly after every
 chunk, so the weights equal those of one uninterrupted run; killed, the same command continues.
 After every chunk the checkpoint is evaluated with ``mer evaluate``'s library function, the model
 alone, on ``--eval-windows`` windows of the ``--eval-source`` robot's clips (the shipped weights
@@ -42,15 +42,15 @@ def held_out(ckpt_dir: Path, eval_input: str, source: str, targets: list[str], w
 
     ``trained``: for a checkpoint with a moving average (``TrainConfig.ema``), score the trained
     weights instead of the average its weights file holds."""
-    from mer_models.checkpoint import load_checkpoint
-    from mer_models.evaluate import EvalOptions, evaluate
+    from mer_models.retarget.evaluate import EvalOptions, evaluate
+    from mer_models.zoo.checkpoint import load_checkpoint
 
     opts = EvalOptions(split="all", max_windows=windows, methods=("model",), steps=steps, batch_size=16)
     ckpt = load_checkpoint(ckpt_dir)
     if trained:
         from safetensors.torch import load_file
 
-        from mer_models.checkpoint import OPTIMIZER, TRAINED_PREFIX
+        from mer_models.hub.checkpoint_files import OPTIMIZER, TRAINED_PREFIX
 
         own = {k[len(TRAINED_PREFIX):]: v for k, v in load_file(str(ckpt_dir / OPTIMIZER)).items() if k.startswith(TRAINED_PREFIX)}
         ckpt.model.load_state_dict(own, strict=True)
@@ -69,7 +69,7 @@ def widened_init(init: Path, ffn: int, dest: Path) -> Path:
     from overfit_probe import ffn_width, widen_ffn
     from safetensors.torch import load_file, save
 
-    from mer_data.atomic import atomic_write
+    from mer_data.base.atomic import atomic_write
 
     if ffn_width(init) == ffn:
         return init
@@ -84,7 +84,7 @@ def run_curve(cfg_name: str, args, out: Path, minutes: float) -> list[dict]:
 
     from mer_data.shards import ShardDataset
     from mer_models.config import preset
-    from mer_models.train import train
+    from mer_models.training.train import train
 
     run = preset(cfg_name)
     if args.batch_size:

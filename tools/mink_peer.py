@@ -162,7 +162,7 @@ def build_mink_robot(robot: str) -> MinkRobot:
         ValueError: the robot has a mimic joint that moves, or its URDF does not compile.
     """
     mujoco, _ = _import_mujoco_mink()
-    from mer_data.registry import load_robot
+    from mer_data.robots.registry import load_robot
     from mer_data.skeleton import KEYPOINTS
 
     rob = load_robot(robot)
@@ -328,7 +328,7 @@ def solve_keypoints(
     ``conf.integrate_inplace(v, dt)``. Frame ``t`` starts from frame ``t - 1``'s solution. A
     ``PostureTask`` pulls the angles towards mer's nominal pose (it ignores the free joint).
 
-    The problem is mer's per-frame IK (``mer_models/ik.py``):
+    The problem is mer's per-frame IK (``mer_models/solver/ik.py``):
     ``w_kp/K * sum_k |p_k - P_k|^2 + w_norm/n_dof * sum_j (q_j - nominal_j)^2`` within the
     limits. mink's task weight ``c`` enters the objective as ``c^2``, so the equivalent costs
     are ``position_cost^2 / posture_cost^2 = (w_kp / K) / (w_norm / n_dof)``; ``posture_cost=None``

@@ -11,7 +11,7 @@ at every step is limited by its optimisation or its representation, not by the a
         [--samples 16] [--every 5] [--steps 500] [--chunk 100] [--init mer_models/bundled/mer-base] [--config base] \\
         [--lr 7e-4] [--lr-decay-steps N] [--lr-min-ratio R] [--grad-clip C] [--lam L] [--start-frac F] [--norm-first] [--layers N] [--hidden H] [--ffn F] [--diagnose] [--bf16] [--threads 1]
 
-Each chunk resumes the previous one exactly (``mer_models.train.train``); one JSON line per chunk
+Each chunk resumes the previous one exactly (``mer_models.training.train.train``); one JSON line per chunk
 is printed and appended to ``OUT.probe.jsonl``.
 """
 
@@ -27,14 +27,14 @@ import torch
 from safetensors import safe_open
 from torch.utils.data import Subset
 
-from mer_data.registry import get_skeleton
-from mer_data.samples import collate
+from mer_data.motion.samples import collate
+from mer_data.robots.registry import get_skeleton
 from mer_data.shards import ShardDataset
-from mer_models.checkpoint import resolve_model
 from mer_models.config import EnergyConfig, preset
-from mer_models.inference import optimize_batch, sample_conditions
-from mer_models.metrics import summarize, window_metrics
-from mer_models.train import clean_samples, train
+from mer_models.retarget.inference import optimize_batch, sample_conditions
+from mer_models.retarget.metrics import summarize, window_metrics
+from mer_models.training.train import clean_samples, train
+from mer_models.zoo.checkpoint import resolve_model
 
 
 def g_mpbpe(motion, batch, keypoints) -> float:

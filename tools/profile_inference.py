@@ -32,15 +32,15 @@ from collections.abc import Callable
 
 import torch
 
-from mer_data.jointmap import joint_map
-from mer_data.registry import get_skeleton
-from mer_data.samples import TrainingSample, collate
-from mer_models.checkpoint import resolve_model
+from mer_data.kinematics.jointmap import joint_map
+from mer_data.motion.samples import TrainingSample, collate
+from mer_data.robots.registry import get_skeleton
 from mer_models.config import EnergyConfig
-from mer_models.evaluate import EvalOptions, collect_windows
-from mer_models.inference import optimize_batch, sample_conditions
-from mer_models.metrics import summarize, window_metrics
-from mer_models.synthetic import SyntheticDataset
+from mer_models.retarget.evaluate import EvalOptions, collect_windows
+from mer_models.retarget.inference import optimize_batch, sample_conditions
+from mer_models.retarget.metrics import summarize, window_metrics
+from mer_models.training.synthetic import SyntheticDataset
+from mer_models.zoo.checkpoint import resolve_model
 
 
 def best_ms(fn: Callable[[], object], repeat: int) -> tuple[float, object]:

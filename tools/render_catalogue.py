@@ -18,8 +18,8 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from mer_models.zoo.catalogue import render_catalogue  # noqa: E402
-from mer_models.zoo.registry import packaged_cards_dir  # noqa: E402
+from mer_models.hub.catalogue import render_catalogue  # noqa: E402
+from mer_models.hub.registry import packaged_cards_dir  # noqa: E402
 
 
 def main() -> int:

@@ -25,8 +25,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from mer_data.motion_io import Motion, read_lafan1_csv  # noqa: E402
-from mer_data.registry import get_skeleton  # noqa: E402
+from mer_data.motion.lafan1 import Motion, read_lafan1_csv  # noqa: E402
+from mer_data.robots.registry import get_skeleton  # noqa: E402
 from mer_data.skeleton import Skeleton  # noqa: E402
 from mer_data.synthesis import clip_seed, ground_heights, synthesize  # noqa: E402
 

@@ -22,7 +22,7 @@ new run from the committed weights when the run folder, with its optimiser state
    ``--lafan1`` is given; the tables go into the card.
 5. **bundle**: ``config.json`` (with the evaluation) and ``model.safetensors`` into
    ``mer_models/bundled/mer-base/``; **card**: ``cards/models/mer-base.md`` and its packaged copy
-   ``mer_models/cards/mer-base.md``, rendered by :func:`mer_models.zoo.fromckpt.card_from_checkpoint`
+   ``mer_models/cards/mer-base.md``, rendered by :func:`mer_models.hub.fromckpt.card_from_checkpoint`
    from the bundled checkpoint's own metadata (status ``bundled``, licence Apache-2.0).
 
 ``--bundle-only`` skips steps 1-4: it bundles the checkpoint in ``--run`` (default WORK/mer-base)
@@ -72,7 +72,7 @@ def train_step(work: Path, shards: Path, minutes: float, lafan1: str | None, clo
     out = work / NAME
     cmd = [sys.executable, str(REPO / "tools" / "learning_curve.py"), "--config", "base", "--shards", str(shards), "--out", str(out),
            "--max-minutes", str(minutes), "--clock", clock, "--chunk-steps", "150"]  # fmt: skip
-    from mer_models.train import native_bf16
+    from mer_models.training.train import native_bf16
 
     if native_bf16("cpu"):  # AMX / AVX512-BF16; elsewhere bf16 is emulated and slower than float32
         cmd.append("--bf16")
@@ -90,7 +90,7 @@ def train_step(work: Path, shards: Path, minutes: float, lafan1: str | None, clo
 def sampler_step(run_dir: Path) -> dict[str, Any]:
     """Give the run the ``base`` preset's sampler (sampling settings are not training state: a resumed
     run takes the preset's too) before it is evaluated and bundled; returns it."""
-    from mer_data.atomic import atomic_write
+    from mer_data.base.atomic import atomic_write
     from mer_models.config import preset
 
     path = run_dir / "config.json"
@@ -104,8 +104,8 @@ def sampler_step(run_dir: Path) -> dict[str, Any]:
 
 
 def evaluate_step(run_dir: Path, lafan1: str) -> dict:
-    from mer_models.checkpoint import load_checkpoint
-    from mer_models.evaluate import EvalOptions, evaluate, format_table
+    from mer_models.retarget.evaluate import EvalOptions, evaluate, format_table
+    from mer_models.zoo.checkpoint import load_checkpoint
 
     opts = EvalOptions(split=EVAL["split"], max_windows=EVAL["max_windows"], refine=EVAL["refine"], methods=("model", "refine", "optimize"))
     reports = {}
@@ -142,7 +142,7 @@ def card_metrics(reports: dict, sampler: dict[str, Any] | None = None) -> dict:
 def _require_synthetic(meta: dict, run_dir: Path) -> None:
     """Refuse a run whose training shards are not all synthetic (weights trained on LAFAN1 carry its
     CC BY-NC-ND terms and must never ship), or whose shards can no longer be read to check."""
-    from mer_data.errors import PublishError
+    from mer_data.base.errors import PublishError
     from mer_data.shards import open_shard
 
     shards = (meta.get("data") or {}).get("shards")
@@ -166,11 +166,10 @@ def _require_synthetic(meta: dict, run_dir: Path) -> None:
 def bundle_step(run_dir: Path, metrics: dict | None, history: str | None = None) -> Path:
     """Copy ``config.json`` (training metrics + ``metrics`` as its evaluation) and the weights of
     ``run_dir`` into ``mer_models/bundled/mer-base/``, replacing what is there atomically."""
-    from mer_data.errors import PublishError
-    from mer_models.zoo.fromckpt import read_checkpoint_meta
-    from mer_models.zoo.registry import bundled_dir
-
-    from mer_data.registry import get_skeleton
+    from mer_data.base.errors import PublishError
+    from mer_data.robots.registry import get_skeleton
+    from mer_models.hub.fromckpt import read_checkpoint_meta
+    from mer_models.hub.registry import bundled_dir
 
     read_checkpoint_meta(run_dir)  # a mer checkpoint with config.json and model.safetensors, or a clear error
     meta = json.loads((run_dir / "config.json").read_text())
@@ -250,7 +249,7 @@ def _verdict(metrics: dict[str, Any]) -> str:
 def architecture_text(run: dict[str, Any]) -> str:
     """'the `base` preset (H = 96, 2 layers per decoder, feed-forward 256, 1 Euler step = ...)' for a checkpoint's
     ``run`` section, saying where its network differs from the preset's."""
-    from mer_data.errors import ConfigError
+    from mer_data.base.errors import ConfigError
     from mer_models.config import preset
 
     model, name = run["model"], run["name"]
@@ -267,8 +266,8 @@ def architecture_text(run: dict[str, Any]) -> str:
 
 def card_step(folder: Path, metrics: dict[str, Any] | None) -> Path:
     """Render ``cards/models/mer-base.md`` and its packaged copy from the bundled checkpoint ``folder``."""
-    from mer_models.zoo.fromckpt import DATASETS, card_from_checkpoint
-    from mer_models.zoo.registry import source_cards_dir, write_card
+    from mer_models.hub.fromckpt import DATASETS, card_from_checkpoint
+    from mer_models.hub.registry import source_cards_dir, write_card
 
     meta = json.loads((folder / "config.json").read_text())
     step = int(meta["step"])
@@ -341,7 +340,7 @@ def main() -> int:
         else:
             print(f"evaluation: none ({evaluation} does not exist); the card holds the training metrics only")
     elif args.lafan1:
-        from mer_data.atomic import atomic_write
+        from mer_data.base.atomic import atomic_write
 
         work.mkdir(parents=True, exist_ok=True)  # before the minutes of evaluation, not after
         reports = evaluate_step(run_dir, args.lafan1)

@@ -47,7 +47,7 @@ $PY -c "import torch, h5py, safetensors, mcap, yourdfpy; print('torch', torch.__
 if [ "$DEVICE" = cuda ]; then $PY -c "import torch; assert torch.cuda.is_available(), 'no CUDA device'; print(torch.cuda.get_device_name())"; fi
 NCPU=$($PY -c "import os; print(os.cpu_count() or 1)")
 BF16=(--bf16)  # native on accelerators; on a CPU (the dry run) only with AMX/AVX512-BF16, else emulated and slow
-if [ "$DEVICE" = cpu ] && ! $PY -c "import sys; from mer_models.train import native_bf16; sys.exit(0 if native_bf16('cpu') else 1)"; then BF16=(); fi
+if [ "$DEVICE" = cpu ] && ! $PY -c "import sys; from mer_models.training.train import native_bf16; sys.exit(0 if native_bf16('cpu') else 1)"; then BF16=(); fi
 t0=$(date +%s)
 $PY -m mer_models shards build --synthetic "$CLIPS" --synthetic-seconds "$SECONDS_PER_CLIP" --robots $ROBOTS --targets $ROBOTS \
   --augment 1 --workers "$NCPU" --quiet --out "$WORK/shards"

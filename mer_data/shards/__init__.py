@@ -2,7 +2,7 @@
 skeletons and joint maps, in HDF5 or MCAP (docs/shards.md).
 
 * :func:`build_shards` (``mer shards build``) and :class:`BuildConfig`;
-* :class:`ShardDataset`: samples (:class:`mer_data.samples.TrainingSample`) from either format;
+* :class:`ShardDataset`: samples (:class:`mer_data.motion.samples.TrainingSample`) from either format;
 * :func:`open_shard`, :func:`inspect_shards` (``mer shards inspect``), :func:`write_card`;
 * :func:`push_shards` (``mer shards push``), ``hf://datasets/...`` in :class:`ShardDataset`, and
   :func:`read_sidecar` (``mer_meta.json``, the metadata ``datasets.load_dataset`` does not read).

@@ -27,10 +27,11 @@ from typing import Callable, Iterator
 
 import torch
 
-from ..atomic import atomic_write
-from ..errors import MerError, ShardBuildError, ShardFormatError
-from ..locks import hold_locks
-from ..skeleton import Skeleton
+from mer_data.base.atomic import atomic_write
+from mer_data.base.errors import MerError, ShardBuildError, ShardFormatError
+from mer_data.base.locks import hold_locks
+from mer_data.skeleton import Skeleton
+
 from .card import write_card
 from .clips import BuildContext, ClipResult, ClipTask, process_clip
 from .config import BuildConfig
@@ -39,8 +40,8 @@ from .mcap_io import McapShardWriter
 from .plan import Part, check_out, clean_temp, part_key, plan_build, temp_name
 from .reader import open_shard
 from .report import BuildReport
-from .sidecar import write_sidecar
 from .schema import ShardMeta
+from .sidecar import write_sidecar
 from .synthetic_source import source_sha256, source_size
 
 log = logging.getLogger(__name__)

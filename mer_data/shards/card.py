@@ -13,8 +13,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..atomic import atomic_write
-from ..errors import ShardFormatError
+from mer_data.base.atomic import atomic_write
+from mer_data.base.errors import ShardFormatError
+
 from .reader import PathsLike, find_shards, open_shard
 from .schema import FORMAT_NAME, FORMAT_VERSION, ShardMeta
 from .sidecar import META_FILE
@@ -192,7 +193,7 @@ def render_lafan1_card(metas: list[tuple[Path, ShardMeta, str]], cfg: dict, inpu
         "",
         "```python",
         "from torch.utils.data import DataLoader",
-        "from mer_data.samples import collate",
+        "from mer_data.motion.samples import collate",
         "from mer_data.shards import ShardDataset",
         "",
         'train = ShardDataset("OUT", split="train")  # or "hf://datasets/OWNER/NAME[@REVISION]" once pushed',

@@ -18,15 +18,16 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..augment import LinkGroups, draw_dropped, draw_link_scales, link_groups
-from ..errors import MerError
-from ..finite import require_finite
-from ..fk import SkeletonTensors, skeleton_tensors
-from ..motion_io import Motion, decompress_motion, parse_lafan1, read_motion_file
-from ..registry import Robot, load_robot
-from ..resample import resample
-from ..skeleton import KEYPOINTS, Skeleton
-from ..windows import make_windows, window_starts
+from mer_data.base.errors import MerError
+from mer_data.base.finite import require_finite
+from mer_data.kinematics.fk import SkeletonTensors, skeleton_tensors
+from mer_data.motion.lafan1 import Motion, decompress_motion, parse_lafan1, read_motion_file
+from mer_data.motion.resample import resample
+from mer_data.motion.windows import make_windows, window_starts
+from mer_data.robots.registry import Robot, load_robot
+from mer_data.skeleton import KEYPOINTS, Skeleton
+
+from .augment import LinkGroups, draw_dropped, draw_link_scales, link_groups
 from .config import BuildConfig
 from .hdf5_io import Hdf5Shard, Hdf5ShardWriter
 from .schema import ShardMeta

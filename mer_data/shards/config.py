@@ -7,8 +7,9 @@ import json
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
-from ..augment import AugmentConfig
-from ..motion_io import QUAT_TOLERANCE
+from mer_data.motion.lafan1 import QUAT_TOLERANCE
+
+from .augment import AugmentConfig
 from .schema import FORMAT_VERSION
 
 __all__ = ["BuildConfig", "PAPER_TARGETS", "FORMATS"]
@@ -34,11 +35,11 @@ class BuildConfig:
             windows, plus a last one ending at the clip's last frame: every frame is in a window).
         fps: frame rate of the input files [Hz] (LAFAN1: 30).
         out_fps: frame rate of the windows [Hz] (paper: 30).
-        split: ``"paper"``, ``"all"`` or the path of a split file (:mod:`mer_data.splits`).
+        split: ``"paper"``, ``"all"`` or the path of a split file (:mod:`mer_data.motion.splits`).
         targets: target robots of the samples; ``("all",)`` = every registered robot.
         augment: augmented target skeletons per (training window, target), besides the URDF one.
         seed: seed of the augmentation draws.
-        augmentation: ranges and drop probability (:class:`mer_data.augment.AugmentConfig`).
+        augmentation: ranges and drop probability (:class:`mer_data.shards.augment.AugmentConfig`).
         num_shards: how many disjoint shards the clips are dealt into (by clip name).
         compression: HDF5 filter: ``"lzf"`` (fast), ``"gzip"`` (portable, smaller) or ``"none"``.
         quat_tolerance: root quaternions within this of unit norm are renormalized, others refused.

@@ -9,7 +9,7 @@ clips), variant-0 samples carry it as ``target``.
 Teacher targets: where a shard has a teacher file (``mer shards solve``,
 :mod:`mer_data.shards.teacher`), every sample carries the optimiser's solution as ``teacher``.
 
-Use :func:`mer_data.samples.collate` as the ``collate_fn``; workers are fine (each process opens
+Use :func:`mer_data.motion.samples.collate` as the ``collate_fn``; workers are fine (each process opens
 its own file handles).
 """
 
@@ -23,11 +23,12 @@ from typing import Iterable
 import numpy as np
 import torch
 
-from ..augment import augmented_joint_map
-from ..errors import ShardFormatError
-from ..samples import TrainingSample
-from ..skeleton import KEYPOINTS, Skeleton
-from ..windows import window_features
+from mer_data.base.errors import ShardFormatError
+from mer_data.motion.samples import TrainingSample
+from mer_data.motion.windows import window_features
+from mer_data.skeleton import KEYPOINTS, Skeleton
+
+from .augment import augmented_joint_map
 from .hub import resolve_hub_paths
 from .reader import PathsLike, ShardFile, find_shards, open_shard
 from .teacher import TeacherFile, teacher_features, teacher_path
@@ -202,7 +203,7 @@ class ShardDataset(torch.utils.data.Dataset):
 
     # ---- data -------------------------------------------------------------------------------
     def window_features(self, window: WindowRef | int) -> np.ndarray:
-        """(T, J, 9) float32 features of a stored window (see :func:`mer_data.windows.window_features`)."""
+        """(T, J, 9) float32 features of a stored window (see :func:`mer_data.motion.windows.window_features`)."""
         w = self.windows[window] if isinstance(window, int) else window
         f = self.files[w.file]
         return window_features(f.row("pos", w.row), f.row("q", w.row), f.row("base_rotvec", w.row), f.meta.fps)

@@ -3,7 +3,7 @@
 * ``foxglove.FrameTransforms`` per frame: one transform per node, ``world -> <robot>/<base>`` from
   the base pose, and ``<robot>/<parent> -> <robot>/<node>`` with the node's rest offset and its
   joint rotation ``Rot(axis, q)`` (node frames are root-aligned at the zero pose, so this is
-  exactly the skeleton's forward kinematics, see :mod:`mer_data.fk`).
+  exactly the skeleton's forward kinematics, see :mod:`mer_data.kinematics.fk`).
 * ``foxglove.SceneUpdate``: one frame-locked entity per node drawing the links to its children
   (a line list in the node's frame) and a sphere at the joint; key points are drawn larger.
 
@@ -20,7 +20,7 @@ from importlib.resources import files
 
 import numpy as np
 
-from ..skeleton import Skeleton
+from mer_data.skeleton import Skeleton
 
 __all__ = [
     "FRAME_TRANSFORMS_SCHEMA",

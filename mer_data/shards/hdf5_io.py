@@ -23,7 +23,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from ..errors import ShardFormatError
+from mer_data.base.errors import ShardFormatError
+
 from .schema import BIG_COLUMNS, COLUMNS, ShardMeta
 
 log = logging.getLogger(__name__)

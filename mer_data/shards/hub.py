@@ -17,9 +17,10 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import ShardError, ShardFormatError
+from mer_data.base.errors import ShardError, ShardFormatError
+
 from .card import LICENSE_ID, write_card
-from .reader import PathsLike, SHARD_SUFFIXES, find_shards, open_shard
+from .reader import SHARD_SUFFIXES, PathsLike, find_shards, open_shard
 from .sidecar import META_FILE, write_sidecar
 
 log = logging.getLogger(__name__)

@@ -24,8 +24,9 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
-from ..errors import ShardFormatError
-from ..skeleton import Skeleton
+from mer_data.base.errors import ShardFormatError
+from mer_data.skeleton import Skeleton
+
 from .foxglove import FRAME_TRANSFORMS_SCHEMA, SCENE_UPDATE_SCHEMA, frame_transforms, scene_update
 from .schema import COLUMNS, ShardMeta, column_shapes
 

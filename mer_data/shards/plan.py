@@ -15,11 +15,12 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
-from .. import __version__
-from ..errors import MerError, ShardBuildError
-from ..motion_io import lafan1_columns
-from ..registry import list_robots, load_robot
-from ..splits import resolve_split
+from mer_data import __version__
+from mer_data.base.errors import MerError, ShardBuildError
+from mer_data.motion.lafan1 import lafan1_columns
+from mer_data.motion.splits import resolve_split
+from mer_data.robots.registry import list_robots, load_robot
+
 from .config import BuildConfig
 from .reader import open_shard
 from .schema import ShardMeta
@@ -85,7 +86,7 @@ def plan_build(cfg: BuildConfig, out: Path, shard_index: int | None) -> Plan:
             f"shard index {shard_index} is outside 0..{cfg.num_shards - 1}", fix="--shard-index I with 0 <= I < --num-shards"
         )
     for r in cfg.robots:  # unknown robot (or, reading files, no LAFAN1 layout): refuse before touching anything
-        load_robot(r) if cfg.synthetic else lafan1_columns(r)
+        load_robot(r) if cfg.synthetic else lafan1_columns(load_robot(r))
     targets = _resolve_targets(cfg.targets)
     clips: dict[str, dict[str, Path | str]]
     if cfg.synthetic:

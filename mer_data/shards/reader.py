@@ -5,7 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Iterable, Union
 
-from ..errors import ShardFormatError
+from mer_data.base.errors import ShardFormatError
+
 from .hdf5_io import Hdf5Shard
 from .mcap_io import McapShard
 from .schema import detect_format

@@ -1,7 +1,7 @@
 """What a shard holds, independent of the file format (HDF5 or MCAP).
 
 A shard file holds the windows of **one source robot**, one split (train/eval) and one shard index.
-Each *row* is one window; the row carries the window's stored arrays (:mod:`mer_data.windows`),
+Each *row* is one window; the row carries the window's stored arrays (:mod:`mer_data.motion.windows`),
 its provenance and its ``K = len(targets) * variants`` training samples::
 
     pos            (T, J, 3)   float32  node positions, origin-normalized [m]
@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ShardFormatError
+from mer_data.base.errors import ShardFormatError
 
 __all__ = [
     "FORMAT_NAME",

@@ -24,9 +24,10 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
-from ..atomic import atomic_write
-from ..errors import ShardFormatError
-from ..skeleton import Skeleton
+from mer_data.base.atomic import atomic_write
+from mer_data.base.errors import ShardFormatError
+from mer_data.skeleton import Skeleton
+
 from .reader import PathsLike, find_shards, open_shard
 from .schema import ShardMeta
 
@@ -127,7 +128,7 @@ class Sidecar:
         ``sample_variant``, ``link_scales``, ``dropped``), for a row of split ``split``."""
         import numpy as np
 
-        from ..skeleton import KEYPOINTS
+        from mer_data.skeleton import KEYPOINTS
 
         m = self.meta(str(row["robot"]), split)
         t = int(np.asarray(row["sample_target"])[k])

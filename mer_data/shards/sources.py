@@ -11,9 +11,9 @@ import logging
 from pathlib import Path
 from typing import Sequence
 
-from ..errors import ShardBuildError
-from ..motion_io import motion_suffixes
-from ..safe_io import check_regular_file
+from mer_data.base.errors import ShardBuildError
+from mer_data.base.safe_io import check_regular_file
+from mer_data.motion.lafan1 import motion_suffixes
 
 log = logging.getLogger(__name__)
 

@@ -16,9 +16,10 @@ from typing import Sequence
 
 import numpy as np
 
-from ..motion_io import Motion, read_motion_file
-from ..skeleton import Skeleton
-from ..synthesis import SYNTHESIS_VERSION, clip_seed, synthesize
+from mer_data.motion.lafan1 import Motion, read_motion_file
+from mer_data.skeleton import Skeleton
+from mer_data.synthesis import SYNTHESIS_VERSION, clip_seed, synthesize
+
 from .config import BuildConfig
 from .sources import sha256_bytes
 

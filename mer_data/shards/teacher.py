@@ -2,7 +2,7 @@
 
 A shard stores windows of a source robot and, per window, the samples (target robot x variant);
 its teacher file stores, for each of those samples, the optimiser's solution on that window
-(``mer shards solve``, :mod:`mer_models.teacher`): the target's joint angles and base pose in the
+(``mer shards solve``, :mod:`mer_models.training.teacher`): the target's joint angles and base pose in the
 window's frame, the residual energy, and the solver configuration. Training reads ``x`` from here
 (features by FK at load time, :func:`teacher_features`), so every target, augmented or not, is
 taught by one consistent solver.
@@ -31,11 +31,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..errors import ShardFormatError
-from ..fk import apply_mimic, fk_skeleton, skeleton_tensors
-from ..rotations import axis_angle_to_matrix
-from ..skeleton import Skeleton
-from ..windows import window_features
+from mer_data.base.errors import ShardFormatError
+from mer_data.kinematics.fk import apply_mimic, fk_skeleton, skeleton_tensors
+from mer_data.kinematics.rotations import axis_angle_to_matrix
+from mer_data.motion.windows import window_features
+from mer_data.skeleton import Skeleton
+
 from .hdf5_io import ProcessLocalH5
 from .schema import ShardMeta
 

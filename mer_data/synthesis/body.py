@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..skeleton import Skeleton
+from mer_data.skeleton import Skeleton
 
 __all__ = ["Body", "GROUPS", "SIDES", "body_of"]
 

@@ -15,7 +15,7 @@ A clip mixes behaviours drawn by a seeded generator:
 
 Every joint passes through :func:`.signals.soft_clamp` (never past a limit, C3); the base height
 puts the lowest node on the ground (z = 0) in every frame except during jumps. The result is a
-:class:`~mer_data.motion_io.Motion` with one column per actuated joint (``skel.joint_names``), so it
+:class:`~mer_data.motion.lafan1.Motion` with one column per actuated joint (``skel.joint_names``), so it
 works for every robot, with or without a LAFAN1 column layout. Same seed, same bytes.
 """
 
@@ -26,11 +26,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..motion_io import Motion
-from ..skeleton import Skeleton
+from mer_data.motion.lafan1 import Motion
+from mer_data.skeleton import Skeleton
+
 from .body import GROUPS, SIDES, body_of
 from .postures import Posture, posture_chain
-from .quat import qaxis, qangle, qcontinuous, qmatrix, qmul, qrotvec, qslerp
+from .quat import qangle, qaxis, qcontinuous, qmatrix, qmul, qrotvec, qslerp
 from .signals import bump, ease, hold_and_blend, smooth_noise, soft_clamp
 
 __all__ = ["SyntheticClip", "synthesize", "clip_seed", "ground_heights", "SYNTHESIS_VERSION"]

@@ -1,1 +1,0 @@
-"""Command-line pieces of mer_data; the ``mer`` entry point (mer_models.cli) assembles them."""

@@ -1,0 +1,8 @@
+"""Kinematics of one skeleton: forward kinematics, rotations, joint maps and body-part scaling.
+
+* :mod:`.fk` (batched, differentiable FK) and :mod:`.fk_kernel` (its compiled kernel);
+* :mod:`.rotations` - rotation conversions in torch;
+* :mod:`.jointmap` - the joint map ``eta`` between two skeletons' key points;
+* :mod:`.scaling` - a source motion's key points scaled to a target skeleton (the goals), and
+  :mod:`.orientation` - the orientation goals of the oriented key points.
+"""

@@ -1,0 +1,13 @@
+"""Robots: a robot description in, a registered robot (card + URDF + :class:`~mer_data.skeleton.Skeleton`) out.
+
+* :mod:`.urdf` (strict, safe URDF loading) and :mod:`.urdf_checks` (structural checks with file and line);
+* :mod:`.card` - the robot card (YAML beside the URDF: key points, CSV layout);
+* :mod:`.builder` - URDF + card -> skeleton graph;
+* :mod:`.keypoints` and :mod:`.keypoint_body` - proposing the 14 key points of an unknown robot;
+* :mod:`.register` (``mer robots register``), :mod:`.registry` (name -> :class:`~.registry.Robot`),
+  :mod:`.location` (where user robots live), :mod:`.table` (``mer robots show``);
+* :mod:`.example` - the small humanoid ``mer demo`` registers;
+* ``builtin/<name>/`` - the 8 built-in robots' URDFs, cards and licences (package data).
+
+A new robot format (MJCF, ...) is read here and ends as the same card + skeleton.
+"""

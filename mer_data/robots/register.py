@@ -1,0 +1,167 @@
+"""``mer robots register``: a new robot from its URDF, in one call, with no code change."""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from mer_data.base.errors import RobotCardError
+from mer_data.base.safe_io import decode_utf8, read_regular_file, safe_yaml_load
+from mer_data.skeleton import KEYPOINTS, Skeleton
+
+from .builder import build_skeleton
+from .card import DEFAULT_BODY_PARTS, RobotCard, parse_keypoints
+from .keypoints import KeypointProposal, propose_robot
+from .registry import Robot, validate_robot_name, write_robot
+from .urdf import UrdfModel, load_urdf
+
+log = logging.getLogger(__name__)
+
+__all__ = ["register_robot", "RegistrationReport", "parse_lock", "load_keypoints_file", "prismatic_locks"]
+
+
+@dataclass(frozen=True)
+class RegistrationReport:
+    """What a registration did (or, with ``dry_run``, would do).
+
+    ``robot`` is the installed entry (None on a dry run); ``skeleton``/``card`` what was (or would
+    be) installed; ``warnings`` what was ignored or may surprise; ``notes`` the conventions applied.
+    """
+
+    robot: Robot | None
+    proposals: dict[str, KeypointProposal] | None  # None when key points came from a file
+    warnings: list[str] = field(default_factory=list)
+    skeleton: Skeleton | None = None
+    card: RobotCard | None = None
+    urdf_path: Path | None = None
+    notes: list[str] = field(default_factory=list)
+
+    def summary(self) -> str:
+        s = self.skeleton if self.skeleton is not None else self.robot.skeleton
+        sites = [n for n, k in zip(s.node_names, s.node_kinds) if k == "site"]
+        mimic = [n for n, m in zip(s.node_names, s.mimic_source) if m >= 0]
+        head = "registered" if self.robot is not None else "dry run, nothing written: would register"
+        lines = [
+            f"{head} {s.name!r} from {self.urdf_path or self.robot.urdf_path}",
+            f"  nodes {s.num_nodes} (base 1, joints {int(s.revolute_mask.sum())}, sites {len(sites)}), "
+            f"actuated joints {s.num_dof}" + (f", mimic {len(mimic)}" if mimic else ""),
+        ]
+        if s.locked:
+            lines.append(f"  locked ({len(s.locked)}): {', '.join(f'{k}={v:g}' for k, v in s.locked.items())}")
+        lines.append("  key points:")
+        for k in KEYPOINTS:
+            node = s.keypoints[k]
+            where = "absent" if node < 0 else f"{s.node_names[node]} ({s.node_kinds[node]})"
+            if self.proposals is not None:
+                p = self.proposals[k]
+                lines.append(f"    {k:15s} {where:40s} [{p.confidence}] {p.reason}")
+            else:
+                lines.append(f"    {k:15s} {where}")
+        lines.extend(f"  note: {n}" for n in self.notes)
+        if self.proposals is not None:
+            unsure = [k for k, p in self.proposals.items() if p.confidence in ("low", "absent")]
+            if unsure:
+                lines.append(
+                    f"  check: {', '.join(unsure)}. Correct them with --keypoints FILE "
+                    "(YAML: name: {link: LINK, offset: [x, y, z]} or null) and --force."
+                )
+        lines.extend(f"  warning: {w}" for w in self.warnings)
+        return "\n".join(lines)
+
+
+def parse_lock(text: str) -> tuple[str, float]:
+    """``JOINT=VALUE`` (radians) → (joint, value)."""
+    name, sep, value = text.partition("=")
+    try:
+        if not sep or not name:
+            raise ValueError
+        return name.strip(), float(value)
+    except ValueError:
+        raise RobotCardError(f"--lock {text!r} is not JOINT=VALUE", fix="e.g. --lock hokuyo_joint=0") from None
+
+
+def load_keypoints_file(path: str | Path) -> dict:
+    """Key points from a YAML or JSON file: either the mapping itself or ``{keypoints: {...}}``."""
+    path = Path(path)
+    raw = read_regular_file(path, RobotCardError, "MER_MAX_CARD_BYTES", fix="check the path given to --keypoints")
+    text = decode_utf8(raw, path, RobotCardError)
+    try:
+        data = json.loads(text) if path.suffix == ".json" else safe_yaml_load(text)
+    except (ValueError, yaml.YAMLError, RecursionError) as exc:
+        raise RobotCardError(f"cannot parse the key point file: {str(exc)[:300]}", path=path) from None
+    if isinstance(data, dict) and "keypoints" in data:
+        data = data["keypoints"]
+    return parse_keypoints(data, str(path))
+
+
+def prismatic_locks(urdf: UrdfModel, locks: dict[str, float]) -> dict[str, float]:
+    """Prismatic joints the user did not lock, held at 0 clipped into their limits (skeletons only turn)."""
+    out = {}
+    for j in urdf.joints:
+        if j.type == "prismatic" and j.name not in locks:
+            lo = -np.inf if j.lower is None else j.lower
+            hi = np.inf if j.upper is None else j.upper
+            out[j.name] = float(np.clip(0.0, lo, hi))
+    return out
+
+
+def register_robot(
+    name: str,
+    urdf_path: str | Path,
+    *,
+    keypoints_file: str | Path | None = None,
+    locks: dict[str, float] | None = None,
+    force: bool = False,
+    dry_run: bool = False,
+) -> RegistrationReport:
+    """Validate a URDF, settle its key points and locks, and install it in the registry atomically.
+
+    Without ``keypoints_file`` the key points are proposed and finger joints locked
+    (:func:`~mer_data.robots.keypoints.propose_robot`); prismatic joints not in ``locks`` are
+    locked at 0 in any case. ``dry_run`` validates and reports without writing anything.
+    """
+    validate_robot_name(name)
+    urdf_path = Path(urdf_path)
+    urdf = load_urdf(urdf_path)
+    locks = dict(locks or {})
+    warnings = list(urdf.warnings)
+    sliding = prismatic_locks(urdf, locks)
+    if sliding:
+        warnings.append(
+            f"prismatic joint(s) {', '.join(f'{k}={v:g}' for k, v in sliding.items())} locked "
+            "(mer's skeletons have turning joints only; --lock JOINT=VALUE holds one elsewhere)"
+        )
+    locks = {**sliding, **locks}
+    proposals, notes = None, []
+    if keypoints_file is not None:
+        keypoints = load_keypoints_file(keypoints_file)
+    else:
+        proposal = propose_robot(urdf, locks)
+        proposals, notes = proposal.keypoints, list(proposal.notes)
+        keypoints = {k: p.spec for k, p in proposals.items()}
+        locks = {**proposal.locked, **locks}  # the user's --lock wins
+    card = RobotCard(
+        name=name,
+        urdf=urdf_path.name,
+        keypoints=keypoints,
+        locked=locks,
+        body_parts=DEFAULT_BODY_PARTS,
+        description=f"{urdf.name} (registered from {urdf_path.name})",
+        path=str(keypoints_file) if keypoints_file else None,
+    )
+    skel = build_skeleton(urdf, card)  # refuse before anything is written
+    if skel.num_dof == 0:
+        warnings.append("the robot has no moving joint")
+    present = sum(v >= 0 for v in skel.keypoints.values())
+    if present < 4:
+        warnings.append(f"only {present} key points: retargeting has little to follow")
+    if dry_run:
+        return RegistrationReport(None, proposals, warnings, skel, card, urdf_path, notes)
+    robot, _ = write_robot(card, urdf_path, force=force)
+    log.info("registered %s", robot.skeleton)
+    return RegistrationReport(robot, proposals, warnings, robot.skeleton, card, urdf_path, notes)

@@ -1,0 +1,231 @@
+"""The robot registry: name → (robot card, URDF, skeleton).
+
+Built-in robots ship inside the package (``mer_data/robots/<name>/``). User robots live in the
+platform's user-data folder (``~/.local/share/mer/robots/<name>/`` on Linux), or under
+``$MER_HOME/robots/<name>/`` when ``MER_HOME`` is set (:mod:`mer_data.robots.location`; robots
+left in the old cache-folder registry are moved there once), and are used by name everywhere the
+built-ins are.
+
+Registration is atomic: the new entry is written and validated in a temporary folder beside the
+registry and renamed into place; a failure or an interruption leaves no half-written entry.
+Registrations may run concurrently in several processes: each temporary folder names its owner, and
+the sweep of leftovers removes only those of processes that are gone. ``force`` replaces an entry
+in one atomic exchange (Linux), or in two renames that are undone if the process dies between them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import re
+import shutil
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+
+from mer_data.base.atomic import atomic_dir, recover_dir, sweep_stale, trash_dir
+from mer_data.base.errors import RegistryError, RobotCardError, RobotExistsError, UnknownRobotError
+from mer_data.skeleton import Skeleton
+
+from .builder import build_skeleton
+from .card import RobotCard, dump_card, load_card
+from .location import legacy_robots_dir, robots_dir
+from .urdf import UrdfModel, load_urdf
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "BUILTIN_ROBOTS",
+    "Robot",
+    "mer_home",
+    "robots_dir",
+    "list_robots",
+    "load_robot",
+    "get_skeleton",
+    "write_robot",
+    "unregister_robot",
+    "validate_robot_name",
+]
+
+BUILTIN_ROBOTS: tuple[str, ...] = ("g1", "h1", "h1_2", "atlas", "oli", "tron1", "talos", "valkyrie")
+_BUILTIN_DIR = Path(__file__).resolve().parent / "builtin"
+_NAME = re.compile(r"^[a-z][a-z0-9_-]{0,63}$")
+CARD_FILE = "robot.yaml"
+
+
+def mer_home() -> Path:
+    """``$MER_HOME``, else the platform's user cache folder + ``mer`` (caches: model cards, downloads)."""
+    env = os.environ.get("MER_HOME")
+    if env:
+        return Path(env).expanduser()
+    return legacy_robots_dir().parent
+
+
+def validate_robot_name(name: str) -> str:
+    """Names are lower-case identifiers: no path separators, no traversal out of the registry."""
+    if not isinstance(name, str) or not _NAME.match(name):
+        raise RegistryError(
+            f"invalid robot name {name!r}",
+            fix="use 1-64 characters: a lower-case letter, then lower-case letters, digits, '_' or '-'",
+        )
+    return name
+
+
+@dataclass(frozen=True)
+class Robot:
+    """A registered robot: its card, URDF and skeleton."""
+
+    name: str
+    card: RobotCard
+    urdf_path: Path
+    skeleton: Skeleton
+    builtin: bool
+
+    @property
+    def folder(self) -> Path:
+        return self.urdf_path.parent
+
+
+def _user_names() -> list[str]:
+    d = robots_dir()
+    if not d.is_dir():
+        return []
+    return sorted(p.name for p in d.iterdir() if p.is_dir() and _NAME.match(p.name) and (p / CARD_FILE).is_file())
+
+
+def known_names() -> list[str]:
+    return list(BUILTIN_ROBOTS) + [n for n in _user_names() if n not in BUILTIN_ROBOTS]
+
+
+def _folder_of(name: str) -> tuple[Path, bool]:
+    if name in BUILTIN_ROBOTS:
+        return _BUILTIN_DIR / name, True
+    validate_robot_name(name)
+    folder = robots_dir() / name
+    if (folder / CARD_FILE).is_file() or (recover_dir(folder) and (folder / CARD_FILE).is_file()):
+        return folder, False
+    raise UnknownRobotError(
+        f"unknown robot {name!r}; known robots: {', '.join(known_names())}",
+        fix=f"register it with `mer robots register {name} --urdf ROBOT.urdf`",
+    )
+
+
+_cache: dict[tuple, Robot] = {}
+_lock = threading.Lock()
+
+
+def load_robot(name: str) -> Robot:
+    """Look a robot up by name (built-in or registered); cached per file modification times."""
+    folder, builtin = _folder_of(name)
+    card_path = folder / CARD_FILE
+    key = (str(card_path), *(p.stat().st_mtime_ns for p in (card_path, *folder.glob("*.urdf"))))
+    with _lock:
+        hit = _cache.get(key)
+    if hit is not None:
+        return hit
+    card = load_card(card_path)
+    if card.name != name:
+        raise RobotCardError(
+            f"the card is named {card.name!r} but lives in the folder of {name!r}",
+            path=card_path,
+            element="name",
+            fix=f"set `name: {name}`",
+        )
+    urdf_path = folder / card.urdf
+    robot = Robot(name, card, urdf_path, build_skeleton(load_urdf(urdf_path), card), builtin)
+    with _lock:
+        _cache[key] = robot
+    return robot
+
+
+def as_robot(robot: str | Robot) -> Robot:
+    """A robot resolved once, where a command or a public entry point starts: a name is looked up
+    (:func:`load_robot`), a :class:`Robot` passes through. Lower layers take the :class:`Robot`."""
+    return robot if isinstance(robot, Robot) else load_robot(robot)
+
+
+def get_skeleton(name: str) -> Skeleton:
+    """The skeleton of a registered robot."""
+    return load_robot(name).skeleton
+
+
+def list_robots() -> list[Robot]:
+    """All robots, built-ins first. A broken user entry is logged and skipped, not fatal."""
+    out = []
+    for name in known_names():
+        try:
+            out.append(load_robot(name))
+        except Exception as exc:  # noqa: BLE001 - one bad entry must not hide the others
+            log.warning("robot %r is broken and is skipped: %s", name, exc)
+    return out
+
+
+def _sweep_stale() -> None:
+    """Recover interrupted replacements and remove leftovers of registrations whose process is gone.
+
+    Temporary folders of registrations still running (in this or another process) are kept.
+    """
+    d = robots_dir()
+    if d.is_dir():
+        for p in sweep_stale(d):
+            log.info("removed the leftover %s of an interrupted registration", p.name)
+
+
+def write_robot(
+    card: RobotCard, urdf_source: Path, *, force: bool = False
+) -> tuple[Robot, UrdfModel]:
+    """Validate ``card`` + URDF and install them as a user robot, atomically.
+
+    The URDF bytes are copied as they are; the card is written with ``urdf: <name>.urdf``.
+
+    Raises:
+        RegistryError: invalid or built-in name; RobotExistsError: taken and not ``force``;
+        any URDF/card error from validation (nothing is written then).
+    """
+    name = validate_robot_name(card.name)
+    if name in BUILTIN_ROBOTS:
+        raise RegistryError(
+            f"{name!r} is a built-in robot and cannot be replaced", fix="register it under another name"
+        )
+    root = robots_dir()
+    final = root / name
+    if final.exists() and not force:
+        raise RobotExistsError(
+            f"robot {name!r} is already registered (at {final})",
+            fix="pass --force to replace it, or choose another name",
+        )
+    root.mkdir(parents=True, exist_ok=True)
+    _sweep_stale()
+    urdf_name = f"{name}.urdf"
+    parsed = {}
+
+    def write(tmp: Path) -> None:
+        shutil.copyfile(urdf_source, tmp / urdf_name)
+        written_card = dataclasses.replace(card, urdf=urdf_name, path=str(tmp / CARD_FILE))
+        (tmp / CARD_FILE).write_text(dump_card(written_card))
+        # validate exactly what was written, before it becomes visible
+        parsed["urdf"] = load_urdf(tmp / urdf_name)
+        build_skeleton(parsed["urdf"], load_card(tmp / CARD_FILE))
+
+    try:
+        atomic_dir(final, write, replace=force)
+    except FileExistsError:
+        raise RobotExistsError(
+            f"robot {name!r} was registered by another process meanwhile (at {final})",
+            fix="pass --force to replace it, or choose another name",
+        ) from None
+    urdf = parsed["urdf"]
+    return load_robot(name), urdf
+
+
+def unregister_robot(name: str) -> Path:
+    """Remove a user robot; returns the folder that was removed."""
+    if name in BUILTIN_ROBOTS:
+        raise RegistryError(f"{name!r} is a built-in robot and cannot be unregistered")
+    folder, _ = _folder_of(name)
+    try:
+        trash_dir(folder)  # atomic: the name disappears at once
+    except FileNotFoundError:
+        raise UnknownRobotError(f"robot {name!r} was unregistered by another process meanwhile") from None
+    return folder

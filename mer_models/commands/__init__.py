@@ -1,1 +1,0 @@
-"""Thin command-line parsers of the model commands (``mer train``, ``mer retarget``, ``mer evaluate``)."""

@@ -1,0 +1,323 @@
+"""A moving picture of a retargeting: the scaled reference and the retarget side by side (GIF or MP4).
+
+Two 3D panels drawn with matplotlib (Agg, no window): on the left the reference scaled to the
+target -- the goals the energy tracks (:func:`mer_data.motion.samples.reference_goals`), drawn as the
+reference skeleton's bones on its scaled node positions with the tracked key points as red dots --
+and on the right the retargeted robot (bones = parent links of its skeleton from FK, key points
+in orange). Both panels share one fixed camera (elevation 15 deg, a three-quarter view of the
+initial heading), equal axes and bounds over the whole motion, so sizes, heights and distances
+compare across panels and frames. A label shows the frame and the time.
+
+Formats, by the file's ending:
+
+* ``.gif``: written with Pillow (a matplotlib dependency, so part of the base install); one
+  256-colour palette from the first frame; frame delays in centiseconds (GIF's unit) rounded
+  cumulatively so the clip plays at its true speed. Pillow holds every frame until it writes
+  (~0.3 MB per 800x400 frame: a 60 s clip at 30 Hz needs ~0.6 GB; lower ``fps`` or use MP4).
+* ``.mp4``: H.264 through the ``ffmpeg`` program (``PATH``, or the binary of the optional
+  ``imageio-ffmpeg`` package), frames streamed to it; without one, :func:`check_video_path`
+  refuses before any work.
+
+The panes, grids and titles are drawn once; each frame redraws only the figures and the label
+(blitting): ~15 ms per 800x400 frame on the 2-core development machine (docs/model.md). ``fps``
+below the motion's rate keeps the frame nearest to each output time. Files are written to a
+temporary sibling and renamed: nothing half-written is ever visible under the final name.
+"""
+
+from __future__ import annotations
+
+import io
+import logging
+import os
+import shutil
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from mer_data.base.atomic import atomic_write, owner_tag
+from mer_data.base.errors import MerError
+from mer_data.skeleton import Skeleton
+
+from .writers import TargetMotion, check_motion_finite
+
+log = logging.getLogger(__name__)
+
+__all__ = ["VIDEO_FORMATS", "GIF_MAX_FPS", "check_video_path", "find_ffmpeg", "video_frame_indices", "write_video"]
+
+#: File endings and what writes them.
+VIDEO_FORMATS = {".gif": "Pillow", ".mp4": "ffmpeg"}
+#: Browsers and viewers slow GIF frame delays under 20 ms down to 100 ms: 50 frames/s at most.
+GIF_MAX_FPS = 50.0
+_INSTALL_FFMPEG = "install ffmpeg (apt install ffmpeg, conda install ffmpeg, brew install ffmpeg, or pip install imageio-ffmpeg), or write a .gif instead"
+
+
+def find_ffmpeg() -> str | None:
+    """The ffmpeg program: ``ffmpeg`` on ``PATH``, else the one of ``imageio-ffmpeg`` if installed."""
+    exe = shutil.which("ffmpeg")
+    if exe is not None:
+        return exe
+    try:
+        import imageio_ffmpeg  # optional: a pip-installable static ffmpeg
+    except ImportError:
+        return None
+    try:
+        return imageio_ffmpeg.get_ffmpeg_exe()
+    except Exception:  # noqa: BLE001 - a broken install counts as none
+        return None
+
+
+def check_video_path(path: str | Path, fps: float | None = None) -> str:
+    """The format (``gif`` or ``mp4``) of ``path``, or MerError: unknown ending, no ffmpeg for MP4, GIF too fast.
+
+    Cheap: call it before retargeting so a bad option fails at once.
+    """
+    suffix = Path(path).suffix.lower()
+    if suffix not in VIDEO_FORMATS:
+        raise MerError(
+            f"unknown video format {suffix or '(no ending)'!r}",
+            path=path,
+            fix=f"name the video file .gif (works with the base install) or .mp4 (needs ffmpeg), e.g. {Path(path).stem or 'out'}.gif",
+        )
+    if fps is not None and not (np.isfinite(fps) and fps > 0):
+        raise MerError(f"video frame rate {fps!r} is not a positive number", path=path, fix="pass e.g. --video-fps 15")
+    if suffix == ".gif" and fps is not None and fps > GIF_MAX_FPS:
+        raise MerError(
+            f"{fps:g} frames/s is too fast for a GIF: players slow frame delays under 20 ms down to 100 ms",
+            path=path,
+            fix=f"pass --video-fps {GIF_MAX_FPS:g} or less, or write an .mp4",
+        )
+    if suffix == ".mp4" and find_ffmpeg() is None:
+        raise MerError("writing an MP4 needs the ffmpeg program, which was not found", path=path, fix=_INSTALL_FFMPEG)
+    return suffix[1:]
+
+
+def video_frame_indices(num_frames: int, fps: float, video_fps: float | None) -> np.ndarray:
+    """Frames shown (nearest to every ``1 / video_fps`` s; all at ``video_fps`` >= ``fps`` or None)."""
+    if video_fps is None or video_fps >= fps:
+        return np.arange(num_frames)
+    times = np.arange(0.0, (num_frames - 1) / fps + 1e-9, 1.0 / video_fps)
+    return np.unique(np.clip(np.round(times * fps).astype(int), 0, num_frames - 1))
+
+
+def _bones(pos: np.ndarray, parents) -> np.ndarray:
+    """(J, 3) node positions → (J-1, 2, 3) parent → child segments."""
+    child = np.arange(1, len(parents))
+    return np.stack([pos[np.asarray(parents)[child]], pos[child]], axis=1)
+
+
+def _bounds(*clouds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Low and high corners (3,) of every point, padded, with the floor (z = 0) included."""
+    pts = np.concatenate([c.reshape(-1, 3) for c in clouds])
+    lo, hi = pts.min(0), pts.max(0)
+    lo[2] = min(lo[2], 0.0)
+    pad = 0.05 * max(float((hi - lo).max()), 0.5)
+    return lo - pad, hi + pad
+
+
+class _Renderer:
+    """One reused figure: two 3D panels whose artists are moved to each frame."""
+
+    def __init__(self, motion: TargetMotion, robot_pos: np.ndarray, goals: np.ndarray, ref_nodes: np.ndarray | None,
+                 ref_skel: Skeleton | None, size: tuple[int, int], title: str | None) -> None:  # fmt: skip
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+        from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
+        self.motion, self.robot_pos, self.goals, self.ref_nodes, self.ref_skel = motion, robot_pos, goals, ref_nodes, ref_skel
+        skel = motion.skeleton
+        self.key = np.array([j for j in skel.keypoints.values() if j >= 0], dtype=int)
+        dpi = 100
+        self.fig = Figure(figsize=(size[0] / dpi, size[1] / dpi), dpi=dpi)
+        self.canvas = FigureCanvasAgg(self.fig)
+        clouds = [robot_pos, goals] + ([ref_nodes] if ref_nodes is not None else [])
+        lo, hi = _bounds(*clouds)
+        r0 = np.asarray(motion.base_rot[0])
+        azim = float(np.degrees(np.arctan2(r0[1, 0], r0[0, 0]))) - 60.0  # three-quarter view of the initial heading
+        self.axes = []
+        for i, name in enumerate((f"reference scaled to {skel.name} (goals)", f"retarget: {skel.name}")):
+            ax = self.fig.add_axes((0.5 * i, 0.07, 0.5, 0.86), projection="3d")
+            ax.set_xlim(lo[0], hi[0])
+            ax.set_ylim(lo[1], hi[1])
+            ax.set_zlim(lo[2], hi[2])
+            ax.set_box_aspect(tuple(hi - lo), zoom=1.08)  # equal axes: 1 m is as long along x, y and z
+            ax.view_init(elev=15.0, azim=azim)
+            ax.tick_params(labelsize=6, pad=0)
+            ax.set_title(name, fontsize=9)
+            self.axes.append(ax)
+        ref_ax, rob_ax = self.axes
+        self.ref_bones = None
+        if ref_skel is not None:
+            self.ref_bones = Line3DCollection(_bones(ref_nodes[0], ref_skel.parents), colors="tab:red", linewidths=1.5)
+            ref_ax.add_collection3d(self.ref_bones, autolim=False)
+        (self.ref_dots,) = ref_ax.plot([], [], [], "o", color="tab:red", ms=3)
+        self.rob_bones = Line3DCollection(_bones(robot_pos[0], skel.parents), colors="tab:blue", linewidths=1.5)
+        rob_ax.add_collection3d(self.rob_bones, autolim=False)
+        (self.rob_dots,) = rob_ax.plot([], [], [], "o", color="tab:orange", ms=3)
+        for ax in self.axes:  # the base's path on the floor, for orientation
+            ax.plot(robot_pos[:, 0, 0], robot_pos[:, 0, 1], np.full(len(robot_pos), lo[2]), color="0.45", lw=1.0)
+        self.label = self.fig.text(0.5, 0.02, "", ha="center", fontsize=9, family="monospace")
+        self.fig.suptitle(title or "", fontsize=9, y=0.995)
+        self.width, self.height = self.canvas.get_width_height()
+        # blitting: the panes, grids, ticks and titles never move; draw them once, keep the pixels
+        self.moving = [a for a in (self.ref_bones, self.ref_dots, self.rob_bones, self.rob_dots, self.label) if a is not None]
+        for a in self.moving:
+            a.set_animated(True)
+        self.canvas.draw()  # also fixes each panel's projection (ax.M), which the moving artists use
+        self.background = self.canvas.copy_from_bbox(self.fig.bbox)
+
+    def frame(self, f: int) -> np.ndarray:
+        """(H, W, 3) uint8 picture of frame ``f``."""
+        m = self.motion
+        if self.ref_bones is not None:
+            self.ref_bones.set_segments(_bones(self.ref_nodes[f], self.ref_skel.parents))
+        g = self.goals[f]
+        self.ref_dots.set_data_3d(g[:, 0], g[:, 1], g[:, 2])
+        p = self.robot_pos[f]
+        self.rob_bones.set_segments(_bones(p, m.skeleton.parents))
+        self.rob_dots.set_data_3d(p[self.key, 0], p[self.key, 1], p[self.key, 2])
+        self.label.set_text(f"frame {f + 1:>{len(str(m.num_frames))}d}/{m.num_frames}   t = {f / m.fps:6.2f} s")
+        self.canvas.restore_region(self.background)
+        for a in self.moving:
+            if hasattr(a, "do_3d_projection"):
+                a.do_3d_projection()  # 3D -> 2D with the panel's fixed camera
+            (a.axes or self.fig).draw_artist(a)
+        return np.asarray(self.canvas.buffer_rgba())[..., :3].copy()
+
+
+def _gif_durations(count: int, fps: float) -> list[int]:
+    """Per-frame delays [ms], multiples of 10 (GIF stores centiseconds) whose sum keeps the true clock."""
+    cs = np.round(np.arange(count + 1) * 100.0 / fps).astype(int)
+    return [int(d) * 10 for d in np.maximum(np.diff(cs), 1)]
+
+
+def _write_gif(path: Path, frames, count: int, fps: float) -> Path:
+    from PIL import Image
+
+    images, palette = [], None
+    for rgb in frames:
+        im = Image.fromarray(rgb)
+        if palette is None:
+            palette = im.quantize(colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE)
+            images.append(palette)
+        else:
+            images.append(im.quantize(palette=palette, dither=Image.Dither.NONE))
+    if len(images) != count:
+        raise RuntimeError(f"rendered {len(images)} frames, expected {count}")
+    buf = io.BytesIO()
+    # optimize=False: Pillow would otherwise drop palette entries per frame (slow, and nothing to gain here)
+    images[0].save(buf, format="GIF", save_all=True, append_images=images[1:], duration=_gif_durations(count, fps),
+                   loop=0, optimize=False, disposal=1)  # fmt: skip
+    return atomic_write(path, buf.getvalue())
+
+
+def _write_mp4(path: Path, frames, size: tuple[int, int], fps: float) -> Path:
+    exe = find_ffmpeg()
+    if exe is None:
+        raise MerError("writing an MP4 needs the ffmpeg program, which was not found", path=path, fix=_INSTALL_FFMPEG)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".tmp-{path.name}~{owner_tag()}~", dir=path.parent)
+    os.close(fd)
+    cmd = [exe, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{size[0]}x{size[1]}", "-r", f"{fps:.6g}",
+           "-i", "-", "-an", "-c:v", "libx264", "-pix_fmt", "yuv420p", "-movflags", "+faststart", "-f", "mp4", tmp]  # fmt: skip
+    proc = None
+    with tempfile.TemporaryFile() as log_file:  # ffmpeg's messages (a file, not a pipe: a pipe that fills up would block it)
+        try:
+            proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=log_file)
+            try:
+                for rgb in frames:
+                    proc.stdin.write(rgb.tobytes())
+            except BrokenPipeError:
+                pass  # ffmpeg stopped early: its exit status and message follow
+            finally:
+                try:
+                    proc.stdin.close()  # end of input (or, after an error, ffmpeg is killed below)
+                except BrokenPipeError:
+                    pass
+            proc.wait()
+            if proc.returncode != 0:
+                log_file.seek(0)
+                tail = log_file.read().decode("utf-8", "replace").strip().splitlines()[-3:]
+                raise MerError(f"ffmpeg failed (exit {proc.returncode}): {' | '.join(tail) or 'no message'}", path=path,
+                               fix="check that this ffmpeg has the libx264 encoder (`ffmpeg -encoders`), or write a .gif")  # fmt: skip
+            with open(tmp, "rb") as fh:
+                os.fsync(fh.fileno())
+            os.chmod(tmp, 0o666 & ~_umask())
+            os.replace(tmp, path)
+        except BaseException:
+            if proc is not None and proc.poll() is None:
+                proc.kill()  # a frame failed to render: stop ffmpeg, keep nothing
+                proc.wait()
+            Path(tmp).unlink(missing_ok=True)
+            raise
+    return path
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def write_video(
+    path: str | Path,
+    motion: TargetMotion,
+    reference_points: np.ndarray,
+    *,
+    reference_nodes: np.ndarray | None = None,
+    reference_skeleton: Skeleton | None = None,
+    fps: float | None = None,
+    size: tuple[int, int] = (800, 400),
+    title: str | None = None,
+) -> Path:
+    """Write the side-by-side video (GIF or MP4, by the ending of ``path``; module docstring).
+
+    Args:
+        motion: the retargeted motion (world frame), F frames at ``motion.fps``.
+        reference_points: (F, K, 3) the scaled reference key points the energy tracks [m], world frame.
+        reference_nodes: (F, Jr, 3) every node of the scaled reference [m] (its bones are drawn when
+            ``reference_skeleton`` is given too; without them the left panel shows the goals only).
+        reference_skeleton: the reference (source) skeleton, for the parent links of ``reference_nodes``.
+        fps: frame rate of the video [Hz]; default the motion's. Lower keeps every k-th frame.
+        size: (width, height) [px], both even (MP4's colour format needs it).
+        title: a line above the panels.
+
+    Returns:
+        ``path``. Raises MerError for an unknown ending, a missing ffmpeg (MP4), mismatched shapes
+        or a non-finite motion; nothing is written then.
+    """
+    path = Path(path)
+    kind = check_video_path(path, fps)
+    check_motion_finite(motion, path)
+    F = motion.num_frames
+    goals = np.asarray(reference_points, np.float64)
+    if goals.ndim != 3 or goals.shape[0] != F or goals.shape[2] != 3:
+        raise MerError(f"reference_points have shape {goals.shape}, expected ({F}, K, 3)", path=path)
+    nodes = None if reference_nodes is None else np.asarray(reference_nodes, np.float64)
+    if nodes is not None:
+        want = (F, reference_skeleton.num_nodes if reference_skeleton is not None else nodes.shape[1], 3)
+        if nodes.shape != want:
+            raise MerError(f"reference_nodes have shape {nodes.shape}, expected {want}", path=path)
+    if not (np.isfinite(goals).all() and (nodes is None or np.isfinite(nodes).all())):
+        raise MerError("the reference has non-finite positions", path=path, fix="retarget from a finite source motion")
+    w, h = (int(v) for v in size)
+    if w < 64 or h < 64 or w % 2 or h % 2:
+        raise MerError(f"video size {w}x{h}: width and height must be even and at least 64 px", path=path)
+    out_fps = float(fps) if fps is not None and fps < motion.fps else float(motion.fps)
+    idx = video_frame_indices(F, motion.fps, fps)
+    robot_pos, _ = motion.forward_kinematics()
+    t0 = time.perf_counter()
+    r = _Renderer(motion, robot_pos, goals, nodes, reference_skeleton if nodes is not None else None, (w, h), title)
+    try:
+        frames = (r.frame(int(f)) for f in idx)
+        if kind == "gif":
+            out = _write_gif(path, frames, len(idx), out_fps)
+        else:
+            out = _write_mp4(path, frames, (r.width, r.height), out_fps)
+    finally:
+        r.fig.clear()
+    dt = time.perf_counter() - t0
+    log.info("%s: %d frames at %g Hz in %.1f s (%.0f ms per frame)", out, len(idx), out_fps, dt, 1e3 * dt / len(idx))
+    return out

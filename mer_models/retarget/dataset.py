@@ -1,0 +1,335 @@
+"""Retargeting whole datasets: every clip of a folder (or Hub dataset) × every target robot.
+
+``mer retarget --input DIR|hf://REPO --source g1 --targets h1 atlas --out OUT``:
+
+* **Outputs** per (target, clip): ``OUT/<target>/<clip>.csv`` (the target's LAFAN1-style layout),
+  optionally ``.npz`` (BeyondMimic layout), and ``<clip>.metrics.json`` (the paper's metrics of
+  that retarget). Each file is written atomically; the metrics file is written last, so its
+  presence means the (target, clip) is finished.
+* **Resumable**: finished (target, clip) pairs are skipped; a run killed at any point leaves no
+  finished file behind half written (a killed writer's temporary file is swept by the next run;
+  those of live runs sharing ``OUT`` are left alone) and the next run with the same arguments does
+  only what is missing.
+* **Sharded**: ``--shard-index I --num-shards N`` takes every N-th (target, clip) pair from the
+  sorted list, so N independent jobs (a scheduler's array job) cover the dataset once.
+* **Batched across clips** (optimiser): every clip is cut into segments of ``segment`` frames
+  plus ``context`` frames on each side (solved with their neighbours so the temporal prior has no
+  seam), and segments of many clips are solved together, up to ``frames_per_batch`` frames at
+  once. The model (``method="diffusion"``) retargets clip by clip through the long-horizon sampler,
+  all of a clip's pending targets in one pass, the reference encoded once per window for all of
+  them (:func:`~mer_models.retarget.long_horizon.retarget_sequences`); each pair's ``seconds`` is its
+  share of that pass.
+* **Summary**: a table per (clip, target) at the end and ``OUT/summary.json`` (every finished
+  pair, including those of earlier runs and other shards that share ``OUT``).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+import torch
+
+from mer_data.base.atomic import atomic_write, sweep_stale
+from mer_data.base.errors import MerError
+from mer_data.kinematics.jointmap import joint_map
+from mer_data.kinematics.rotations import axis_angle_to_matrix
+from mer_data.motion.samples import TrainingSample, collate
+from mer_data.robots.registry import Robot, as_robot
+from mer_data.skeleton import Skeleton
+from mer_models.batch import graph_from_batch
+from mer_models.config import EnergyConfig
+from mer_models.export.writers import NPZ_FPS, TargetMotion, write_csv, write_npz
+from mer_models.solver.optimize import optimize_motion
+from mer_models.zoo.checkpoint import Checkpoint
+
+from .clip import MODEL_FPS, retarget_features_many, sequence_metrics, source_features
+from .long_horizon import prepare_reference
+
+log = logging.getLogger(__name__)
+
+__all__ = ["FORMATS", "Job", "find_clips", "plan_jobs", "retarget_dataset", "format_summary"]
+
+FORMATS = ("csv", "npz")
+SUMMARY_KEYS = ("g_mpbpe", "mpboe", "mpbve", "jerk_frame", "limit_violation")
+
+
+@dataclass(frozen=True)
+class Job:
+    """One (target, clip) pair and where its outputs go."""
+
+    target: str
+    clip: str
+    source_path: Path
+    out_dir: Path
+
+    def output(self, kind: str) -> Path:
+        return self.out_dir / self.target / (f"{self.clip}.metrics.json" if kind == "metrics" else f"{self.clip}.{kind}")
+
+    def done(self) -> bool:
+        return self.output("metrics").is_file()
+
+
+def find_clips(input_spec: str, source: str) -> dict[str, Path]:
+    """clip name → motion file of ``source``: ``DIR/<source>/*.csv[.gz]`` (LAFAN1 layout), else
+    ``DIR/*.csv[.gz]``; ``hf://OWNER/NAME[@REV]`` is downloaded (only ``<source>/`` files)."""
+    from mer_data.shards.sources import clip_name, discover_clips, resolve_input
+
+    root = resolve_input(input_spec, [source])
+    if (root / source).is_dir():
+        return discover_clips(root, [source])[source]
+    if not any(clip_name(p) is not None for p in root.iterdir()):
+        raise MerError(
+            f"no motions of {source!r} in the input: neither {source}/*.csv nor *.csv",
+            path=root,
+            fix=f"point --input at a folder holding {source}/<clip>.csv (LAFAN1 layout) or <clip>.csv files",
+        )
+    return discover_clips(root.parent, [root.name])[root.name]  # the same regular-file and duplicate checks
+
+
+def plan_jobs(clips: dict[str, Path], targets: Sequence[str], out_dir: Path, shard_index: int = 0, num_shards: int = 1) -> list[Job]:
+    """This shard's jobs: every ``num_shards``-th of the (target, clip) pairs sorted by target, clip."""
+    if num_shards < 1 or not 0 <= shard_index < num_shards:
+        raise MerError(f"--shard-index {shard_index} is not in 0..{num_shards - 1}", fix="use 0 <= --shard-index < --num-shards")
+    jobs = [Job(t, c, p, out_dir) for t in sorted(set(targets)) for c, p in sorted(clips.items())]
+    return jobs[shard_index::num_shards]
+
+
+@dataclass(eq=False)
+class _Clip:
+    """A clip being retargeted to one target: its goals (whole clip) and the solution so far."""
+
+    job: Job
+    feats: np.ndarray  # (N, Jr, 9) world features, first base x, y at the origin
+    scaled: np.ndarray  # (N, Jr, 3)
+    goal_rot: np.ndarray  # (N, Jr, 3, 3)
+    rot_mask: np.ndarray  # (Jr,)
+    shift: np.ndarray  # (3,)
+    world_feats: np.ndarray
+    q: np.ndarray = field(init=False)
+    base_pos: np.ndarray = field(init=False)
+    base_rot: np.ndarray = field(init=False)
+    pending: int = 0
+
+    def __post_init__(self) -> None:
+        n = self.feats.shape[0]
+        self.q, self.base_pos, self.base_rot = np.zeros((n, 0)), np.zeros((n, 3)), np.zeros((n, 3, 3))
+
+
+def _segments(n: int, segment: int, context: int) -> list[tuple[int, int, int, int]]:
+    """(window start, window end, core start, core end) covering 0..n-1: windows of at most
+    ``segment + 2 context`` frames, each core inside its window with ``context`` frames around it
+    where the clip has them."""
+    span = segment + 2 * context
+    out = []
+    for s in range(0, n, segment):
+        e = min(n, s + segment)
+        a = max(0, s - context)
+        b = min(n, a + span)
+        a = max(0, min(a, b - span))
+        out.append((a, b, s, e))
+    return out
+
+
+def _source(job: Job, source: Robot, fps: float) -> np.ndarray:
+    """(N, Jr, 9) world features of a job's source clip at the model's frame rate."""
+    from mer_data.motion.lafan1 import read_lafan1_csv
+    from mer_data.motion.resample import resample
+
+    src = source.skeleton
+    motion = read_lafan1_csv(job.source_path, source, fps=fps)
+    if motion.fps != MODEL_FPS:
+        motion = resample(motion, MODEL_FPS)
+    return source_features(motion.base_pos, motion.base_quat, motion.node_angles(src), src, MODEL_FPS)
+
+
+def _read(job: Job, source: Robot, target: Skeleton, fps: float) -> _Clip:
+    feats = _source(job, source, fps)
+    f, scaled, shift, (goal_rot, rot_mask) = prepare_reference(feats, source.skeleton, target)
+    return _Clip(job, f, scaled, goal_rot, rot_mask, shift, feats)
+
+
+def _solve_batch(items: list[tuple[_Clip, tuple[int, int, int, int]]], src: Skeleton, target: Skeleton, span: int,
+                 energy: EnergyConfig, device: str) -> None:  # fmt: skip
+    """Optimise segments of several clips in one batch and write their cores back into the clips."""
+    eta = joint_map(target, src)
+    B = len(items)
+
+    def pad(x: np.ndarray) -> np.ndarray:
+        return x if len(x) == span else np.concatenate([x, np.repeat(x[-1:], span - len(x), 0)])
+
+    goal = np.stack([pad(c.scaled[a:b]) for c, (a, b, _, _) in items])
+    grot = np.stack([pad(c.goal_rot[a:b]) for c, (a, b, _, _) in items])
+    rvec = np.stack([pad(c.feats[a:b, 0, 0:3]) for c, (a, b, _, _) in items])
+    one = collate([TrainingSample(items[0][0].feats[:3].astype(np.float32), src, target, eta)])  # the target's graph
+    g = graph_from_batch(one, "tgt", device).select(torch.zeros(B, dtype=torch.long, device=device))
+    out = optimize_motion(
+        energy, g, torch.from_numpy(eta.astype(np.float32))[None].expand(B, -1, -1).to(device),
+        torch.from_numpy(goal).float().to(device), axis_angle_to_matrix(torch.from_numpy(rvec).float()).to(device),
+        goal_rot=torch.from_numpy(grot).float().to(device),
+        rot_mask=torch.from_numpy(items[0][0].rot_mask)[None].expand(B, -1).to(device),
+    )  # fmt: skip
+    q, bp, br = (out[k].double().cpu().numpy() for k in ("q", "base_pos", "base_rot"))
+    for k, (c, (a, _, s, e)) in enumerate(items):
+        if c.q.shape[1] != q.shape[2]:
+            c.q = np.zeros((c.feats.shape[0], q.shape[2]))
+        c.q[s:e], c.base_pos[s:e], c.base_rot[s:e] = q[k, s - a : e - a], bp[k, s - a : e - a], br[k, s - a : e - a]
+        c.pending -= 1
+
+
+def _finish(c: _Clip, target: Robot, src: Skeleton, formats: Sequence[str], method: str, seconds: float,
+            npz_fps: float | None = NPZ_FPS) -> dict:  # fmt: skip
+    """Write a finished clip's outputs (metrics file last) and return its summary row."""
+    skel = target.skeleton
+    motion = TargetMotion(skel, MODEL_FPS, c.q[:, : skel.num_nodes], c.base_pos + c.shift, c.base_rot)
+    prepared = (c.feats, c.scaled, c.shift, (c.goal_rot, c.rot_mask))
+    return _write(c.job, target, motion, c.world_feats, src, formats, method, seconds, prepared, npz_fps)
+
+
+def _write(job: Job, target: Robot, motion: TargetMotion, world_feats: np.ndarray, src: Skeleton, formats, method: str,
+           seconds: float, prepared: tuple | None = None, npz_fps: float | None = NPZ_FPS) -> dict:  # fmt: skip
+    if "csv" in formats:
+        write_csv(job.output("csv"), motion, robot=target)
+    if "npz" in formats:
+        write_npz(job.output("npz"), motion, fps=npz_fps, robot=target)
+    metrics = sequence_metrics(world_feats, src, motion, prepared=prepared)
+    row = {"clip": job.clip, "target": job.target, "frames": motion.num_frames, "method": method, "seconds": round(seconds, 3),
+           **{k: metrics[k] for k in SUMMARY_KEYS}}  # fmt: skip
+    atomic_write(job.output("metrics"), json.dumps(row, indent=1) + "\n")
+    return row
+
+
+def retarget_dataset(
+    input_spec: str,
+    source: str | Robot,
+    targets: Sequence[str | Robot],
+    out_dir: str | Path,
+    *,
+    method: str = "optimize",
+    checkpoint: Checkpoint | None = None,
+    formats: Sequence[str] = ("csv",),
+    shard_index: int = 0,
+    num_shards: int = 1,
+    input_fps: float = MODEL_FPS,
+    npz_fps: float | None = NPZ_FPS,
+    segment: int = 512,
+    context: int = 8,
+    frames_per_batch: int = 8192,
+    energy: EnergyConfig | None = None,
+    device: str = "cpu",
+    progress: Callable[[int, int], None] | None = None,
+    **model_kw,
+) -> dict:
+    """Retarget every clip of ``source`` in the input to every target (see the module docstring).
+
+    Args:
+        source, targets: robots, or names resolved here once (lower layers take the :class:`Robot`).
+        method: ``optimize`` (batched across clips) or ``diffusion`` (``checkpoint`` required).
+        formats: any of :data:`FORMATS`; the metrics file is always written; npz_fps: npz frame rate [Hz].
+        progress: called with (pairs done, pairs to do) of this run's work.
+        model_kw: sampler options for ``diffusion`` (``steps``, ``guidance``, ``seed``, ``allow_unseen``, ``bf16``).
+
+    Returns:
+        ``{"jobs", "done_before", "done_now", "frames", "seconds", "frames_per_second", "rows"}``;
+        ``rows`` are the summary rows of every finished pair in ``out_dir`` (this run's and earlier ones).
+    """
+    unknown = [f for f in formats if f not in FORMATS]
+    if unknown:
+        raise MerError(f"unknown output format(s) {unknown}; known: {', '.join(FORMATS)}")
+    if method not in ("optimize", "diffusion"):
+        raise MerError(f"unknown method {method!r}", fix="use --method optimize or diffusion")
+    if method == "diffusion" and checkpoint is None:
+        raise MerError("the diffusion method needs a model", fix="pass --model NAME, or use --method optimize")
+    out_dir = Path(out_dir)
+    src_robot = as_robot(source)
+    robots = {r.name: r for r in map(as_robot, targets)}
+    source, targets = src_robot.name, list(robots)
+    src = src_robot.skeleton
+    clips = find_clips(input_spec, source)
+    jobs = plan_jobs(clips, targets, out_dir, shard_index, num_shards)
+    for t in set(targets):  # temporary files of killed runs (live writers' files are left alone)
+        sweep_stale(out_dir / t)
+    todo = [j for j in jobs if not j.done()]
+    log.info("%d (target, clip) pairs in this shard; %d already done, %d to do", len(jobs), len(jobs) - len(todo), len(todo))
+    energy = energy or EnergyConfig()
+    t_start, frames_done, pairs_done = time.perf_counter(), 0, 0
+    if method == "diffusion":  # clip by clip, all its pending targets in one pass (the reference encoded once per window)
+        by_clip: dict[str, list[Job]] = {}
+        for j in todo:
+            by_clip.setdefault(j.clip, []).append(j)
+        for _, cjobs in sorted(by_clip.items()):
+            cjobs.sort(key=lambda j: j.target)
+            t0 = time.perf_counter()
+            world = _source(cjobs[0], src_robot, input_fps)
+            results = retarget_features_many(world, src, [robots[j.target].skeleton for j in cjobs], method="diffusion", checkpoint=checkpoint,
+                                             fps=MODEL_FPS, **model_kw)  # fmt: skip
+            seconds = (time.perf_counter() - t0) / len(cjobs)  # the pass is shared: each pair gets its share
+            for j, res in zip(cjobs, results):
+                _write(j, robots[j.target], res.motion, world, src, formats, method, seconds, res.prepared, npz_fps)
+                frames_done += res.motion.num_frames
+                pairs_done += 1
+                if progress is not None:
+                    progress(pairs_done, len(todo))
+        todo_optimize: list[Job] = []
+    else:
+        todo_optimize = todo
+    for target_name in sorted({j.target for j in todo_optimize}):
+        target = robots[target_name]
+        tjobs = [j for j in todo_optimize if j.target == target_name]
+        span = segment + 2 * context
+        per_batch = max(1, frames_per_batch // span)
+        queue: list[tuple[_Clip, tuple[int, int, int, int]]] = []
+        started: dict[str, float] = {}
+        for k, j in enumerate(tjobs):
+            c = _read(j, src_robot, target.skeleton, input_fps)
+            started[j.clip] = time.perf_counter()
+            segs = _segments(c.feats.shape[0], segment, context)
+            c.pending = len(segs)
+            queue += [(c, s) for s in segs]
+            last = k == len(tjobs) - 1
+            while len(queue) >= per_batch or (last and queue):
+                items, queue = queue[:per_batch], queue[per_batch:]
+                _solve_batch(items, src, target.skeleton, span, energy, device)
+                for c2 in dict.fromkeys(c for c, _ in items):
+                    if c2.pending == 0:
+                        _finish(c2, target, src, formats, method, time.perf_counter() - started[c2.job.clip], npz_fps)
+                        frames_done += c2.feats.shape[0]
+                        pairs_done += 1
+                        if progress is not None:
+                            progress(pairs_done, len(todo))
+    seconds = time.perf_counter() - t_start
+    rows = []
+    for j in jobs:
+        if j.done():
+            rows.append(json.loads(j.output("metrics").read_text()))
+    summary = {
+        "source": source, "targets": sorted(set(targets)), "method": method, "jobs": len(jobs),
+        "done_before": len(jobs) - len(todo), "done_now": len(todo), "frames": frames_done, "seconds": round(seconds, 3),
+        "frames_per_second": round(frames_done / seconds, 1) if seconds > 0 and frames_done else None, "rows": rows,
+    }  # fmt: skip
+    all_rows = []
+    for p in sorted(out_dir.glob("*/*.metrics.json")):
+        try:
+            all_rows.append(json.loads(p.read_text()))
+        except (OSError, ValueError):
+            continue
+    atomic_write(out_dir / "summary.json", json.dumps({**summary, "rows": all_rows}, indent=1) + "\n")
+    return summary
+
+
+def format_summary(summary: dict) -> str:
+    """The rows as a text table (one line per clip and target) and the totals."""
+    head = f"{'target':10s} {'clip':28s} {'frames':>7s} {'g-mpbpe[m]':>11s} {'mpboe[rad]':>11s} {'jerk[r/f3]':>11s} {'limits':>7s}"
+    lines = [head]
+    for r in sorted(summary["rows"], key=lambda r: (r["target"], r["clip"])):
+        lines.append(f"{r['target']:10s} {r['clip'][:28]:28s} {r['frames']:7d} {r['g_mpbpe']:11.4f} {r['mpboe']:11.3f} "
+                     f"{r['jerk_frame']:11.4f} {r['limit_violation']:7.3f}")  # fmt: skip
+    fps = summary.get("frames_per_second")
+    lines.append(f"{summary['jobs']} pairs in this shard: {summary['done_before']} done before, {summary['done_now']} now "
+                 f"({summary['frames']} frames in {summary['seconds']} s" + (f", {fps} frames/s)" if fps else ")"))  # fmt: skip
+    return "\n".join(lines)

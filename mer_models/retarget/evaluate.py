@@ -1,0 +1,275 @@
+"""Evaluation on LAFAN1-layout motion folders, in the paper's table layout (Table II).
+
+The source robot's clips (``INPUT/<source>/*.csv[.gz]``) are split (``paper``: 3 training clips
+per robot, the rest held out), cut into 60-frame origin-normalized windows exactly as the shards
+cut them (:mod:`mer_data.motion.windows`), and retargeted to each target robot as independent windows
+(the paper evaluates 60-frame clips), by the model and/or the optimisation baseline on the very
+same windows. When ``INPUT/<target>/`` has the same clip (G1 and H1 share LAFAN1), that window
+is the target's ground truth for the ``gt_*`` metrics. Metrics: :mod:`mer_models.retarget.metrics`.
+
+``in-domain`` = windows of the split's training clips; ``out-of-domain`` = the held-out clips.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+import torch
+
+from mer_data.base.errors import MerError
+from mer_data.kinematics.jointmap import joint_map
+from mer_data.motion.samples import TrainingSample, collate
+from mer_data.robots.registry import Robot, as_robot
+from mer_models.config import EnergyConfig, SamplerConfig
+from mer_models.solver.optimize import DEFAULT_GN_ITERS, DEFAULT_ITERS
+from mer_models.zoo.checkpoint import Checkpoint, check_robot
+
+from .inference import optimize_batch, sample_batch
+from .metrics import summarize, window_metrics
+
+log = logging.getLogger(__name__)
+
+__all__ = ["EvalOptions", "collect_windows", "evaluate", "format_table", "DOMAINS"]
+
+DOMAINS = ("in-domain", "out-of-domain")
+METHODS = ("model", "refine", "optimize")
+
+
+@dataclass(frozen=True)
+class EvalOptions:
+    """Which windows and how to retarget them.
+
+    Attributes:
+        split: ``paper``, ``all`` or a split file (:func:`mer_data.motion.splits.resolve_split`).
+        window, stride: window length and stride [frames].
+        max_windows: at most this many windows per domain, spread evenly over the clips (None: all).
+        methods: ``model``, ``refine`` (the model, then at most ``refine`` optimiser iterations from
+            its output) and/or ``optimize``.
+        steps, guidance, init_noise: sampler overrides (None: the checkpoint's).
+        batch_size: windows per forward pass.
+        seed: sampling noise.
+        opt_iters, opt_gn_iters: the optimiser's Adam and (most) Levenberg-Marquardt iterations.
+        scaling: how the reference is scaled to the target (:mod:`mer_data.kinematics.scaling`).
+        refine: Levenberg-Marquardt iterations of the ``refine`` method.
+        bf16: the model's network under bfloat16 autocast (:mod:`mer_models.diffusion.precision`).
+    """
+
+    split: str = "paper"
+    window: int = 60
+    stride: int = 60
+    max_windows: int | None = None
+    methods: tuple[str, ...] = ("model", "optimize")
+    steps: int | None = None
+    guidance: float | None = None
+    init_noise: float | None = None
+    batch_size: int = 16
+    seed: int = 0
+    opt_iters: int = DEFAULT_ITERS
+    opt_gn_iters: int = DEFAULT_GN_ITERS
+    scaling: str = "segments"
+    refine: int = 5
+    bf16: bool = False
+
+
+def _clip_files(folder: Path) -> dict[str, Path]:
+    out = {}
+    for p in sorted(folder.glob("*.csv")) + sorted(folder.glob("*.csv.gz")):
+        out[p.name[: -len(".csv.gz")] if p.name.endswith(".gz") else p.stem] = p
+    return out
+
+
+def _robot_folder(root: Path, robot: str) -> Path | None:
+    d = root / robot
+    return d if d.is_dir() else None
+
+
+def _joints(skel) -> dict[str, int]:
+    """URDF joint name → node of every revolute joint (``at_limit/<joint>`` in the report)."""
+    return {n: i for i, (n, k) in enumerate(zip(skel.urdf_joint_names, skel.node_kinds)) if k == "revolute"}
+
+
+def collect_windows(input_dir: str | Path, robot: str | Robot, opts: EvalOptions) -> dict[str, list[dict]]:
+    """domain → windows ``{clip, start, reference (T, J, 9)}`` of the source robot."""
+    from mer_data.motion.lafan1 import read_lafan1_csv
+    from mer_data.motion.splits import EVAL, TRAIN, resolve_split
+    from mer_data.motion.windows import make_windows, window_features, window_starts
+
+    robot = as_robot(robot)
+    source = robot.name
+    root = Path(input_dir)
+    folder = _robot_folder(root, source)
+    if folder is None:
+        raise MerError(f"no folder {source}/ in {root}", path=root, fix=f"point --input at a folder holding {source}/*.csv")
+    files = _clip_files(folder)
+    if not files:
+        raise MerError(f"no .csv or .csv.gz motions in {folder}", path=folder)
+    split = resolve_split(opts.split, {source: list(files)})[source]
+    skel = robot.skeleton
+    motions, chosen = {}, {TRAIN: [], EVAL: []}
+    for clip, path in files.items():
+        motion = read_lafan1_csv(path, robot)
+        starts = window_starts(motion.num_frames, opts.window, opts.stride)
+        if len(starts) == 0:
+            log.warning("%s: %d frames, shorter than a window; skipped", path, motion.num_frames)
+            continue
+        motions[clip] = motion
+        chosen[split[clip]] += [(clip, int(s)) for s in starts]
+    out = {}
+    for dom, key in zip(DOMAINS, (TRAIN, EVAL)):
+        w = chosen[key]
+        if opts.max_windows is not None and len(w) > opts.max_windows:
+            idx = np.unique(np.linspace(0, len(w) - 1, opts.max_windows).round().astype(int))
+            w = [w[i] for i in idx]
+        windows = []
+        for clip in dict.fromkeys(c for c, _ in w):  # clips in order; features only for chosen windows
+            starts = np.array([s for c, s in w if c == clip], np.int64)
+            wb = make_windows(motions[clip], skel, starts, opts.window)
+            feats = window_features(wb.pos, wb.q, wb.base_rotvec, motions[clip].fps)
+            windows += [{"clip": clip, "start": int(s), "reference": feats[k]} for k, s in enumerate(starts)]
+        out[dom] = windows
+    return out
+
+
+def _target_windows(input_dir: Path, target: Robot, windows: list[dict], opts: EvalOptions) -> list[np.ndarray | None]:
+    """The target robot's own windows of the same clips and starts, where its data has them."""
+    from mer_data.motion.lafan1 import read_lafan1_csv
+    from mer_data.motion.windows import make_windows, window_features
+
+    folder = _robot_folder(input_dir, target.name)
+    if folder is None or not target.card.lafan1_columns:
+        return [None] * len(windows)
+    files = _clip_files(folder)
+    skel = target.skeleton
+    out: list[np.ndarray | None] = []
+    cache: dict[str, object] = {}
+    for w in windows:
+        path = files.get(w["clip"])
+        if path is None:
+            out.append(None)
+            continue
+        if w["clip"] not in cache:
+            cache[w["clip"]] = read_lafan1_csv(path, target)
+        m = cache[w["clip"]]
+        if w["start"] + opts.window > m.num_frames:
+            out.append(None)
+            continue
+        wb = make_windows(m, skel, np.array([w["start"]]), opts.window)
+        out.append(window_features(wb.pos, wb.q, wb.base_rotvec, m.fps)[0])
+    return out
+
+
+def evaluate(
+    input_dir: str | Path,
+    source: str,
+    targets: Sequence[str],
+    *,
+    checkpoint: Checkpoint | None = None,
+    opts: EvalOptions = EvalOptions(),
+    energy: EnergyConfig | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> dict:
+    """Evaluate; returns a JSON-ready report (see :func:`format_table`)."""
+    input_dir = Path(input_dir)
+    src_robot = as_robot(source)  # every name resolved once, here
+    tgt_robots = {t: as_robot(t) for t in targets}
+    methods = tuple(opts.methods)
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        raise MerError(f"unknown method(s) {unknown}; known: {', '.join(METHODS)}")
+    if opts.bf16 and not ("model" in methods or "refine" in methods):
+        raise MerError("--bf16 runs the model's network in bfloat16; the optimiser has no network",
+                       fix="drop --bf16, or add --methods model (or refine)")  # fmt: skip
+    if "model" in methods or "refine" in methods:
+        if checkpoint is None:
+            raise MerError("evaluating the model needs --model", fix="pass --model PATH, or --methods optimize")
+        for t in targets:
+            check_robot(checkpoint, t, "targets")
+        check_robot(checkpoint, source, "references")
+    model_energy = energy or (checkpoint.run.energy if checkpoint is not None else EnergyConfig())
+    opt_energy = energy or EnergyConfig()
+    windows = collect_windows(input_dir, src_robot, opts)
+    ref = src_robot.skeleton
+    rows = []
+    for target in targets:
+        tgt = tgt_robots[target].skeleton
+        eta = joint_map(tgt, ref)
+        for dom in DOMAINS:
+            w = windows[dom]
+            if not w:
+                continue
+            gts = _target_windows(input_dir, tgt_robots[target], w, opts)
+            for method in methods:
+                vals: dict[str, list[np.ndarray]] = {}
+                t0 = time.time()
+                for a in range(0, len(w), opts.batch_size):
+                    samples = [
+                        TrainingSample(x["reference"], ref, tgt, eta, gt, {"clip": x["clip"], "start": x["start"]})
+                        for x, gt in zip(w[a : a + opts.batch_size], gts[a : a + opts.batch_size])
+                    ]
+                    batch = collate(samples, scaling=opts.scaling)
+                    if method in ("model", "refine"):
+                        run = checkpoint.run
+                        over = {k: float(v) for k, v in {"guidance": opts.guidance, "init_noise": opts.init_noise}.items() if v is not None}
+                        sampler = SamplerConfig(**{**run.sampler.__dict__, **over})
+                        gen = torch.Generator().manual_seed(opts.seed + a)
+                        motion = sample_batch(checkpoint.model, batch, sampler, energy=model_energy, steps=opts.steps, generator=gen,
+                                              bf16=opts.bf16)  # fmt: skip
+                        if method == "refine":
+                            motion = optimize_batch(opt_energy, batch, gn_iters=opts.refine, init=motion)
+                    else:
+                        motion = optimize_batch(opt_energy, batch, iters=opts.opt_iters, gn_iters=opts.opt_gn_iters)
+                    for k, v in window_metrics(motion, batch, keypoints={"base": 0, **tgt.keypoints}, joints=_joints(tgt)).items():
+                        vals.setdefault(k, []).append(v)
+                summary = summarize({k: np.concatenate(v) for k, v in vals.items()})
+                sec = time.time() - t0
+                row = {"robot": target, "domain": dom, "method": method, "windows": len(w), "seconds": round(sec, 2),
+                       "frames_per_s": round(len(w) * opts.window / max(sec, 1e-9), 1), "metrics": summary}  # fmt: skip
+                rows.append(row)
+                if progress is not None:
+                    progress(f"{target:9s} {dom:13s} {method:8s} {len(w)} windows, {row['seconds']} s")
+    return {
+        "source": source,
+        "targets": list(targets),
+        "model": str(checkpoint.path) if checkpoint is not None else None,
+        "options": {**opts.__dict__, "methods": list(methods)},
+        "rows": rows,
+    }
+
+
+_COLS = (("g_mpbpe", "E_g-mpbpe [m]"), ("mpboe", "E_mpboe [rad]"), ("mpbve", "E_mpbve [m/s]"), ("jerk_frame", "E_smooth [rad/fr^3]"), ("ref_jerk_frame", "source jerk"), ("limit_violation", "limits"))
+_GT_COLS = (("gt_mpbpe", "vs data: pos [m]"), ("gt_mpboe", "orient [rad]"), ("gt_mpbve", "vel [m/s]"))
+
+
+def _cell(m: dict, k: str) -> str:
+    v = m.get(k)
+    if not v or not np.isfinite(v["mean"]):
+        return "-"
+    if k == "limit_violation":
+        return f"{v['mean']:.3f}"
+    return f"{v['mean']:.4g}±{v['std']:.2g}"
+
+
+def format_table(report: dict) -> str:
+    """The report as text in the paper's layout: an in-domain block, then an out-of-domain block."""
+    lines = [f"source {report['source']}  model {report['model'] or '-'}  split {report['options']['split']}"]
+    head = f"{'robot':10s} {'method':9s} {'win':>5s} {'fr/s':>7s}  " + "  ".join(f"{t:>18s}" for _, t in _COLS)
+    has_gt = any(np.isfinite(r["metrics"].get("gt_mpbpe", {}).get("mean", np.nan)) for r in report["rows"])
+    if has_gt:
+        head += "  " + "  ".join(f"{t:>16s}" for _, t in _GT_COLS)
+    for dom in DOMAINS:
+        rows = [r for r in report["rows"] if r["domain"] == dom]
+        if not rows:
+            continue
+        lines += ["", f"{dom}", head]
+        for r in rows:
+            s = f"{r['robot']:10s} {r['method']:9s} {r['windows']:5d} {r.get('frames_per_s', float('nan')):7.0f}  " + "  ".join(f"{_cell(r['metrics'], k):>18s}" for k, _ in _COLS)
+            if has_gt:
+                s += "  " + "  ".join(f"{_cell(r['metrics'], k):>16s}" for k, _ in _GT_COLS)
+            lines.append(s)
+    return "\n".join(lines)
+

@@ -1,0 +1,453 @@
+"""Per-frame damped Gauss-Newton (Levenberg-Marquardt) IK on the key-point and orientation energy.
+
+The optimiser of :mod:`mer_models.solver.optimize`, batched over samples *and* frames. For every frame of
+every sample at once it minimises ::
+
+    w_kp  * mean_pairs    || FK_i(q, base) - P_j ||^2                 key-point positions [m^2]
+  + w_ori * mean_oriented || R_i(q, base) - G_j ||_F^2 / 2            base, feet, hands (chordal ~ angle^2)
+  + w_norm * mean_dof (q - q0)^2                                      nominal pose [rad^2]
+  + smooth * mean_dof (q - (q_prev + q_next) / 2)^2                   temporal smoothness [rad^2]
+
+over all joint angles and the base pose, with analytic Jacobians from the FK's world frames:
+``dp_k/dq_j = a_j x (p_k - p_j)`` for every ancestor joint ``j`` of node ``k``, ``dR_k/dq_j =
+[a_j]x R_k`` (the node's own joint included), base translation the identity, a world-frame base
+rotation ``delta`` ``-[p_k - p_0]x`` and ``-[R_k e_l]x``; mimic joints are folded into their
+sources. Steps are projected onto the joint limits.
+
+The smoothness term couples neighbouring frames; it is handled Jacobi-style: the neighbours'
+mean is taken from the previous iterate, so every frame still solves a small dense system of its
+own and all frames run in one batched solve. It damps the frame-to-frame jitter that redundant
+joints (wrists, waist) otherwise pick up between independently solved frames.
+
+:func:`coupled_lm_ik`, for warm starts (``--refine K``), solves the same terms with the frames
+coupled exactly instead: one block-tridiagonal system per sample and iteration (block cyclic
+reduction), joints at a limit the gradient pushes past held, one damping per sample. Its prior has
+the Jacobi prior's gradient, so both share their fixed point; it gets there in a few iterations
+where the Jacobi prior needs dozens (docs/model.md §The optimiser as a refinement).
+
+In :func:`gauss_newton_ik` each frame keeps its own Levenberg-Marquardt damping: it shrinks after
+a step that lowers the frame's cost and grows (the step rejected) otherwise. A sample stops once none of its frames'
+cost moved by more than ``tol`` (relative) in an iteration; the loop ends when every sample has.
+Nothing couples samples, so a sample's result does not depend on the rest of the batch (up to
+floating-point rounding of differently padded systems).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from mer_data.kinematics.rotations import axis_angle_to_matrix
+from mer_models.batch import BatchGraph, batch_fk
+from mer_models.config import EnergyConfig
+
+from .energy import keypoint_goals, orientation_pairs
+
+__all__ = ["ancestors", "gauss_newton_ik", "coupled_lm_ik", "DEFAULT_SMOOTH", "DEFAULT_TOL"]
+
+#: Weight of the temporal smoothness prior, relative to ``w_kp`` [m^2 / rad^2] (docs/model.md).
+DEFAULT_SMOOTH = 0.05
+#: Relative cost change under which a frame counts as converged.
+DEFAULT_TOL = 1e-4
+
+
+def ancestors(parents: torch.Tensor) -> torch.Tensor:
+    """(B, J) parents (``-1`` at node 0) → (B, J, J) bool, ``[b, k, j]`` True iff j is a strict ancestor of k."""
+    B, J = parents.shape
+    anc = torch.zeros(B, J, J, dtype=torch.bool, device=parents.device)
+    b = torch.arange(B, device=parents.device)[:, None].expand(B, J)
+    k = torch.arange(J, device=parents.device)[None].expand(B, J)
+    cur = parents.clone()
+    while bool((cur >= 0).any()):
+        v = cur >= 0
+        anc[b[v], k[v], cur[v]] = True
+        cur = torch.where(v, torch.gather(parents, 1, cur.clamp_min(0)), torch.full_like(cur, -1))
+    return anc
+
+
+def _skew(v: torch.Tensor) -> torch.Tensor:
+    x, y, z = v.unbind(-1)
+    o = torch.zeros_like(x)
+    return torch.stack([o, -z, y, z, o, -x, -y, x, o], -1).reshape(v.shape + (3,))
+
+
+def _rows(mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(B, J) bool → (B, K) indices of the True entries (padded with 0) and their (B, K) mask."""
+    K = max(int(mask.sum(-1).max()), 1)
+    order = torch.argsort((~mask).to(torch.int8), dim=1, stable=True)[:, :K]
+    return order, torch.gather(mask, 1, order)
+
+
+def _neighbour_mean(q: torch.Tensor) -> torch.Tensor:
+    """(B, T, J) → the mean of each frame's neighbours in time (the one neighbour at the ends)."""
+    if q.shape[1] < 2:
+        return q
+    prev = torch.cat([q[:, 1:2], q[:, :-1]], 1)
+    nxt = torch.cat([q[:, 1:], q[:, -2:-1]], 1)
+    return 0.5 * (prev + nxt)
+
+
+class _Problem:
+    """One batch's key-point, orientation and nominal-pose terms in the form both solvers use:
+    the actuated joints as columns (mimic nodes folded into their sources, sites and padding
+    dropped), the goals gathered per row, and the analytic Jacobian (module docstring)."""
+
+    def __init__(self, cfg, graph, eta, goal, q, goal_rot, rot_mask) -> None:
+        B, T, J = q.shape
+        dtype, dev = q.dtype, q.device
+        self.B, self.T, self.J, self.dtype, self.dev, self.graph, self.q = B, T, J, dtype, dev, graph, q
+        goals, pairs = keypoint_goals(eta.to(dtype), goal.to(dtype))
+        pairs = pairs & graph.mask
+        rows, row_mask = _rows(pairs)  # (B, K)
+        K = self.K = rows.shape[1]
+        self.rows = rows
+        self.goals = torch.gather(goals, 2, rows[:, None, :, None].expand(B, T, K, 3))
+        self.w_kp = ((cfg.w_kp / pairs.sum(-1).clamp_min(1).to(dtype))[:, None] * row_mask.to(dtype))[:, None, :]  # (B,1,K)
+        self.M = 0
+        if goal_rot is not None and rot_mask is not None and cfg.w_ori > 0:
+            rgoal, opairs = orientation_pairs(eta.to(dtype), goal_rot.to(dtype), rot_mask)
+            opairs = opairs & graph.mask
+            orows, orow_mask = _rows(opairs)
+            M = self.M = orows.shape[1]
+            rgoal = torch.gather(rgoal, 2, orows[:, None, :, None, None].expand(B, T, M, 3, 3))
+            w_o = (cfg.w_ori / 2 / opairs.sum(-1).clamp_min(1).to(dtype))[:, None] * orow_mask.to(dtype)  # (B,M)
+            self.w_o = w_o.repeat_interleave(3, dim=1)[:, None]  # (B,1,3M): one row per rotation column
+            self.gcols = rgoal.transpose(-1, -2).reshape(B, T, 3 * M, 3)  # rows: the goal's columns
+        dof = graph.dof
+        self.n_dof = dof.sum(-1).clamp_min(1).to(dtype)
+        w_reg = (cfg.w_norm / self.n_dof)[:, None] * dof.to(dtype)  # (B,J)
+        cols, col_mask = _rows(dof)  # (B, D)
+        self.cols, self.col_mask = cols, col_mask
+        D = self.D = cols.shape[1]
+        src = torch.where(graph.revolute & graph.mask, graph.mimic_source, torch.full_like(graph.mimic_source, -1))
+        fold = (src[:, :, None] == cols[:, None, :]) & col_mask[:, None, :]  # (B, J, D) node → its driving column
+        self.fold = fold.to(dtype) * torch.where(graph.mimic_source == torch.arange(J, device=dev), 1.0, graph.mimic_multiplier.to(dtype))[..., None]
+        anc = ancestors(graph.parents)
+        anc_p = torch.gather(anc, 1, rows[..., None].expand(B, K, J)).to(dtype)  # (B,K,J)
+        if self.M:
+            own = anc | torch.eye(J, dtype=torch.bool, device=dev)
+            anc_o = torch.gather(own, 1, orows[..., None].expand(B, M, J)).to(dtype).repeat_interleave(3, dim=1)  # (B,3M,J)
+            self.orow_node = orows.repeat_interleave(3, dim=1)
+            self.col_of_row = torch.arange(3, device=dev).repeat(M)  # which column of R each row is
+        self.anc_rows = torch.cat([anc_p, anc_o], 1) if self.M else anc_p  # (B,R,J) which joints move each row
+        self.lower = torch.gather(graph.lower, 1, cols)[:, None]
+        self.upper = torch.gather(graph.upper, 1, cols)[:, None]
+        self.nominal = torch.gather(graph.nominal, 1, cols)[:, None]
+        self.reg = torch.gather(w_reg, 1, cols)[:, None]  # (B,1,D)
+        self.n = D + 6
+        self.eye = torch.eye(self.n, dtype=dtype, device=dev)
+        self.pad = (~col_mask).to(dtype)[:, None]  # padding columns: identity rows keep the system regular
+        self.padd = torch.cat([self.pad, torch.zeros(B, 1, 6, dtype=dtype, device=dev)], -1)  # (B,1,n)
+
+    def dof_weight(self, weight: float) -> torch.Tensor:
+        """(B, 1, D): ``weight / n_dof`` on every actuated column (0 on padding): a per-DoF mean's weight."""
+        return torch.gather((weight / self.n_dof)[:, None] * self.graph.dof.to(self.dtype), 1, self.cols)[:, None]
+
+    def columns(self, q: torch.Tensor) -> torch.Tensor:
+        return torch.gather(q, 2, self.cols[:, None].expand(self.B, self.T, self.D))
+
+    def full_q(self, qd: torch.Tensor) -> torch.Tensor:
+        out = self.q.clone()
+        idx = self.cols[:, None].expand(self.B, self.T, self.D)
+        out.scatter_(2, idx, torch.where(self.col_mask[:, None], qd, torch.gather(self.q, 2, idx)))
+        return out
+
+    def fit(self, qd, base_pos, base_rot):
+        """FK and the fit terms: world positions, rotations, key points, rotation columns, cost (B, T)."""
+        pos, rot = batch_fk(self.graph, self.full_q(qd), base_pos, base_rot)
+        return (pos, rot, *self.residual_cost(pos, rot))
+
+    def residual_cost(self, pos, rot):
+        B, T, K, M = self.B, self.T, self.K, self.M
+        kp = torch.gather(pos, 2, self.rows[:, None, :, None].expand(B, T, K, 3))
+        cost = (self.w_kp * ((kp - self.goals) ** 2).sum(-1)).sum(-1)
+        ocols = None
+        if M:
+            r = torch.gather(rot, 2, self.orow_node[:, None, :, None, None].expand(B, T, 3 * M, 3, 3))
+            ocols = r[..., :, :].gather(-1, self.col_of_row[None, None, :, None, None].expand(B, T, 3 * M, 3, 1))[..., 0]
+            cost = cost + (self.w_o * ((ocols - self.gcols) ** 2).sum(-1)).sum(-1)
+        return kp, ocols, cost
+
+    def linearise(self, pos, rot, kp, ocols) -> tuple[torch.Tensor, torch.Tensor]:
+        """Gauss-Newton normal equations of the fit terms: ``J^T J`` (B, T, n, n) and ``J^T r`` (B, T, n)."""
+        B, T, K, M, D, dtype, dev, graph = self.B, self.T, self.K, self.M, self.D, self.dtype, self.dev, self.graph
+        axes_w = (rot @ graph.axes[:, None, :, :, None]).squeeze(-1)  # (B,T,J,3) world joint axes
+        # a_j x (p_k - p_j) = [a_j]x p_k - a_j x p_j; rotation columns: a_j x c_l = [a_j]x c_l
+        vecs = torch.cat([kp, ocols], 2) if M else kp  # (B,T,R,3)
+        jrows = torch.einsum("btjde,btre->btrdj", _skew(axes_w), vecs)  # (B,T,R,3,J)
+        jrows[:, :, :K] -= torch.linalg.cross(axes_w, pos).transpose(-1, -2)[:, :, None]
+        res = [(kp - self.goals) * self.w_kp[..., None].sqrt()]
+        jb = [torch.cat([torch.eye(3, dtype=dtype, device=dev).expand(B, T, K, 3, 3), -_skew(kp - pos[:, :, :1])], -1)]
+        wr = [self.w_kp]
+        if M:
+            res.append((ocols - self.gcols) * self.w_o[..., None].sqrt())
+            jb.append(torch.cat([torch.zeros(B, T, 3 * M, 3, 3, dtype=dtype, device=dev), -_skew(ocols)], -1))
+            wr.append(self.w_o)
+        jrows = jrows * self.anc_rows[:, None, :, None, :]
+        jq = (jrows.flatten(1, 3) @ self.fold).view(B, T, -1, 3, D)  # (B,T,R,3,D): mimic nodes folded into their sources
+        jac = torch.cat([jq, torch.cat(jb, 2)], -1)  # (B,T,R,3,n)
+        sw = torch.cat(wr, -1).sqrt()[..., None, None]  # (B,1,R,1,1)
+        jw = (jac * sw).flatten(2, 3)  # (B,T,3R,n) weighted
+        r = torch.cat(res, 2).flatten(2, 3)  # (B,T,3R) weighted residuals
+        return jw.transpose(-1, -2) @ jw, (jw.transpose(-1, -2) @ r[..., None])[..., 0]
+
+    def damp(self, h: torch.Tensor, mu: torch.Tensor) -> torch.Tensor:
+        """Marquardt damping ``mu * diag(h)`` (mu broadcast to (B, T)) and identity rows on the padding."""
+        diag = h.diagonal(dim1=-2, dim2=-1)
+        return h + mu[..., None, None] * torch.diag_embed(diag + 1e-9) + torch.diag_embed(self.padd.expand(self.B, self.T, self.n)) + 1e-9 * self.eye
+
+    def candidate(self, qd, base_pos, base_rot, step):
+        """Apply a step (B, T, n): angles projected onto the limits, the base rotation in the world frame."""
+        D = self.D
+        qd_c = torch.minimum(torch.maximum(qd + step[..., :D] * self.col_mask[:, None], self.lower), self.upper)
+        return qd_c, base_pos + step[..., D : D + 3], axis_angle_to_matrix(step[..., D + 3 :]) @ base_rot
+
+    def zeros(self, *shape) -> torch.Tensor:
+        return torch.zeros(*shape, dtype=self.dtype, device=self.dev)
+
+
+@torch.no_grad()
+def gauss_newton_ik(
+    cfg: EnergyConfig,
+    graph: BatchGraph,
+    eta: torch.Tensor,
+    goal: torch.Tensor,
+    q: torch.Tensor,
+    base_pos: torch.Tensor,
+    base_rot: torch.Tensor,
+    *,
+    goal_rot: torch.Tensor | None = None,
+    rot_mask: torch.Tensor | None = None,
+    iters: int = 30,
+    damping: float = 1e-2,
+    smooth: float = DEFAULT_SMOOTH,
+    tol: float = DEFAULT_TOL,
+    stats: dict | None = None,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Refine (q (B, T, J), base_pos (B, T, 3), base_rot (B, T, 3, 3)) towards the goals.
+
+    Args:
+        eta: (B, Jt, Jr) joint map; goal: (B, T, Jr, 3) scaled reference positions [m].
+        goal_rot: (B, T, Jr, 3, 3) orientation goals and rot_mask (B, Jr) the reference nodes that
+            carry one (:func:`mer_data.kinematics.orientation.orientation_goals`); omitted: positions only.
+        iters: at most this many iterations; smooth: weight of the temporal prior (0: frames
+            independent); tol: early stop (relative cost change of every frame).
+        stats: receives ``iterations`` (the most any sample ran) and ``cost`` (B, T).
+
+    Returns the refined triple; angles stay inside [lower, upper].
+    """
+    B, T, J = q.shape
+    P = _Problem(cfg, graph, eta, goal, q, goal_rot, rot_mask)
+    D, n = P.D, P.n
+    sm = P.dof_weight(smooth * cfg.w_kp) if T > 1 else P.zeros(B, 1, D)
+    reg, nominal = P.reg, P.nominal
+    qd = P.columns(q)
+
+    def prior(qd, qbar):
+        return (reg * (qd - nominal) ** 2).sum(-1) + (sm * (qd - qbar) ** 2).sum(-1)
+
+    pos, rot, kp, ocols, cost_fit = P.fit(qd, base_pos, base_rot)
+    mu = torch.full((B, T), damping, dtype=P.dtype, device=P.dev)
+    active = torch.ones(B, dtype=torch.bool, device=P.dev)  # samples still iterating (each stops on its own)
+    done = 0
+    for it in range(iters):
+        qbar = _neighbour_mean(qd)
+        cost = cost_fit + prior(qd, qbar)
+        h, g = P.linearise(pos, rot, kp, ocols)
+        prior_h = torch.cat([reg + sm, P.zeros(B, 1, 6)], -1)
+        g = g + torch.cat([reg * (qd - nominal) + sm * (qd - qbar), P.zeros(B, T, 6)], -1)
+        h = h + torch.diag_embed(prior_h.expand(B, T, n))
+        L, info = torch.linalg.cholesky_ex(P.damp(h, mu))
+        step = -torch.cholesky_solve(g[..., None], L)[..., 0]
+        step = torch.where((info == 0)[..., None], step, torch.zeros_like(step))
+        qd_c, bp_c, br_c = P.candidate(qd, base_pos, base_rot, step)
+        pos_c, rot_c, kp_c, ocols_c, fit_c = P.fit(qd_c, bp_c, br_c)
+        cost_c = fit_c + prior(qd_c, qbar)
+        ok = (cost_c < cost) & active[:, None]
+        o1, o2, o3 = ok[..., None], ok[..., None, None], ok[..., None, None, None]
+        qd, base_pos, base_rot = torch.where(o1, qd_c, qd), torch.where(o1, bp_c, base_pos), torch.where(o2, br_c, base_rot)
+        pos, kp = torch.where(o2, pos_c, pos), torch.where(o2, kp_c, kp)
+        rot, cost_fit = torch.where(o3, rot_c, rot), torch.where(ok, fit_c, cost_fit)
+        if P.M:
+            ocols = torch.where(o2, ocols_c, ocols)
+        mu = torch.where(active[:, None], torch.where(ok, mu / 3, mu * 4).clamp(1e-7, 1e6), mu)
+        done = it + 1
+        change = torch.where(ok, (cost - cost_c) / cost.clamp_min(1e-12), torch.zeros_like(cost))
+        if it >= 2:
+            active = active & ~(change < tol).all(-1)
+            if not bool(active.any()):
+                break
+    if stats is not None:
+        stats["iterations"] = done
+        stats["cost"] = cost_fit + prior(qd, _neighbour_mean(qd))
+    return P.full_q(qd), base_pos, base_rot
+
+
+def _block_tridiagonal_solve(a: torch.Tensor, c: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Solve ``diag(c_{t-1}) x_{t-1} + a_t x_t + diag(c_t) x_{t+1} = b_t`` for all t.
+
+    Block cyclic reduction: the odd frames are eliminated, the even ones form a system of the same
+    shape (half the length), recursively; then the odd frames are recovered. ``log2 T`` levels,
+    each batched over its frames, so a whole motion of thousands of frames costs a few dozen
+    batched factorisations (the sequential block Thomas sweep would be T of them). For symmetric
+    positive definite systems it is Cholesky of an odd-even permutation of the matrix: stable.
+
+    Args:
+        a: (B, T, n, n) symmetric positive definite diagonal blocks; c: (B, T-1, n) the diagonal
+            blocks coupling frames t and t+1; b: (B, T, n).
+
+    Returns:
+        x (B, T, n) and (B,) bool: every factorisation of that sample was positive definite
+        (where not, its x is zero).
+    """
+    B, T, n = b.shape
+    low = torch.zeros(B, T, n, n, dtype=a.dtype, device=a.device)  # low[:, t]: row t's block on x_{t-1}
+    if T > 1:
+        low[:, 1:] = torch.diag_embed(c)
+    ok = torch.ones(B, dtype=torch.bool, device=a.device)
+    x = _cyclic_reduction(a, low, b, ok)
+    return torch.where(ok[:, None, None], x, torch.zeros_like(x)), ok
+
+
+def _spd_inverse(a: torch.Tensor, ok: torch.Tensor) -> torch.Tensor:
+    """Inverse of (B, K, n, n) SPD blocks; clears ``ok`` (B,) in place where a factorisation fails."""
+    L, info = torch.linalg.cholesky_ex(a)
+    bad = (info != 0).any(-1)
+    if bool(bad.any()):  # keep the reduction finite; the sample's solution is dropped
+        ok &= ~bad
+        L = torch.where((info != 0)[..., None, None], torch.eye(a.shape[-1], dtype=a.dtype, device=a.device), L)
+    return torch.cholesky_inverse(L)
+
+
+def _cyclic_reduction(a: torch.Tensor, low: torch.Tensor, b: torch.Tensor, ok: torch.Tensor) -> torch.Tensor:
+    """One level of :func:`_block_tridiagonal_solve` on dense couplings ``low`` (B, T, n, n)
+    (row t's block on x_{t-1}, ``low[:, 0] = 0``; row t's block on x_{t+1} is ``low[:, t+1]^T``)."""
+    B, T, n = b.shape
+    if T == 1:
+        return (_spd_inverse(a, ok) @ b[..., None])[..., 0]
+    if T % 2:  # an uncoupled identity frame at the end makes the length even; its x is 0
+        a = torch.cat([a, torch.eye(n, dtype=a.dtype, device=a.device).expand(B, 1, n, n)], 1)
+        low = torch.cat([low, torch.zeros_like(low[:, :1])], 1)
+        b = torch.cat([b, torch.zeros_like(b[:, :1])], 1)
+    ae, ao, le, lo, be, bo = a[:, 0::2], a[:, 1::2], low[:, 0::2], low[:, 1::2], b[:, 0::2], b[:, 1::2]
+    inv = _spd_inverse(ao, ok)  # (B, K, n, n): the odd frames, eliminated
+    # even frame 2k: its left neighbour is odd frame 2k-1 (index k-1), its right one odd frame 2k+1 (index k)
+    inv_l = torch.cat([torch.zeros_like(inv[:, :1]), inv[:, :-1]], 1)
+    lo_l = torch.cat([torch.zeros_like(lo[:, :1]), lo[:, :-1]], 1)
+    bo_l = torch.cat([torch.zeros_like(bo[:, :1]), bo[:, :-1]], 1)
+    up = lo.transpose(-1, -2)  # even row 2k's block on x_{2k+1}
+    le_inv = le @ inv_l
+    up_inv = up @ inv
+    a2 = ae - le_inv @ le.transpose(-1, -2) - up_inv @ lo
+    low2 = -(le_inv @ lo_l)
+    b2 = be - (le_inv @ bo_l[..., None])[..., 0] - (up_inv @ bo[..., None])[..., 0]
+    xe = _cyclic_reduction(a2, low2, b2, ok)
+    # odd frame 2k+1: b - low x_{2k} - (row's block on x_{2k+2}) x_{2k+2}
+    le_r = torch.cat([le[:, 1:], torch.zeros_like(le[:, :1])], 1)  # row 2k+2's block on x_{2k+1}, transposed below
+    xe_r = torch.cat([xe[:, 1:], torch.zeros_like(xe[:, :1])], 1)
+    rhs = bo - (lo @ xe[..., None])[..., 0] - (le_r.transpose(-1, -2) @ xe_r[..., None])[..., 0]
+    xo = (inv @ rhs[..., None])[..., 0]
+    x = torch.stack([xe, xo], 2).flatten(1, 2)
+    return x[:, :T]
+
+
+def _velocity_prior(qd: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+    """Per-frame share (B, T) of ``sum_t w . (q_{t+1} - q_t)^2``: each difference split between its two frames."""
+    d = (w * (qd[:, 1:] - qd[:, :-1]) ** 2).sum(-1)  # (B, T-1)
+    out = torch.zeros(qd.shape[:2], dtype=qd.dtype, device=qd.device)
+    if qd.shape[1] > 1:
+        out[:, 1:] += 0.5 * d
+        out[:, :-1] += 0.5 * d
+    return out
+
+
+@torch.no_grad()
+def coupled_lm_ik(
+    cfg: EnergyConfig,
+    graph: BatchGraph,
+    eta: torch.Tensor,
+    goal: torch.Tensor,
+    q: torch.Tensor,
+    base_pos: torch.Tensor,
+    base_rot: torch.Tensor,
+    *,
+    goal_rot: torch.Tensor | None = None,
+    rot_mask: torch.Tensor | None = None,
+    iters: int = 5,
+    damping: float = 1e-2,
+    smooth: float = DEFAULT_SMOOTH,
+    tol: float = DEFAULT_TOL,
+    stats: dict | None = None,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Levenberg-Marquardt on a whole window at once: the temporal prior couples the frames exactly.
+
+    The same terms as :func:`gauss_newton_ik`, except the prior: ``smooth / 4 * mean_dof
+    (q_{t+1} - q_t)^2`` summed over consecutive frames, whose gradient in the interior is exactly
+    the Jacobi prior's ``smooth * (q_t - (q_{t-1} + q_{t+1}) / 2)`` — so both solvers share their
+    fixed point (up to the two end frames), but here every step solves the linearised problem of
+    all frames together (a block-tridiagonal system, :func:`_block_tridiagonal_solve`) instead of
+    pulling each frame towards its neighbours' previous iterate. One damping per sample; a step is
+    kept if it lowers that sample's whole cost. Meant for warm starts (``--refine K``), where the
+    Jacobi prior needs many iterations to let the frames move together.
+
+    Arguments and return as :func:`gauss_newton_ik`; ``stats["cost"]`` (B, T) splits each
+    difference of the prior between its two frames.
+    """
+    B, T, J = q.shape
+    P = _Problem(cfg, graph, eta, goal, q, goal_rot, rot_mask)
+    D = P.D
+    w = P.dof_weight(smooth * cfg.w_kp)[:, 0] / 4 if T > 1 else P.zeros(B, D)  # (B, D) per difference
+    reg, nominal = P.reg, P.nominal
+    qd = P.columns(q)
+    neighbours = torch.full((T,), 2.0, dtype=P.dtype, device=P.dev)
+    neighbours[0] = neighbours[-1] = 1.0 if T > 1 else 0.0
+    prior_h = torch.cat([reg + 2 * w[:, None] * neighbours[None, :, None], P.zeros(B, T, 6)], -1)  # (B, T, n)
+    coupling = torch.cat([-2 * w, P.zeros(B, 6)], -1)  # (B, n)
+
+    def frame_cost(fit, qd):
+        return fit + (reg * (qd - nominal) ** 2).sum(-1) + _velocity_prior(qd, w[:, None])
+
+    def prior_grad(qd):
+        gq = reg * (qd - nominal)
+        if T > 1:
+            d = 2 * w[:, None] * (qd[:, 1:] - qd[:, :-1])  # (B, T-1, D): d/dq_{t+1} of each difference
+            gq = gq + torch.cat([P.zeros(B, 1, D), d], 1) - torch.cat([d, P.zeros(B, 1, D)], 1)
+        return torch.cat([gq, P.zeros(B, T, 6)], -1)
+
+    pos, rot, kp, ocols, fit = P.fit(qd, base_pos, base_rot)
+    cost = frame_cost(fit, qd)
+    mu = torch.full((B,), damping, dtype=P.dtype, device=P.dev)
+    active = torch.ones(B, dtype=torch.bool, device=P.dev)
+    done = 0
+    for it in range(iters):
+        h, g = P.linearise(pos, rot, kp, ocols)
+        h = h + torch.diag_embed(prior_h)
+        g = g + prior_grad(qd)
+        # active set: a joint at a limit that the gradient pushes further out stays where it is
+        gq = g[..., :D]
+        fixed = ((qd <= P.lower) & (gq > 0)) | ((qd >= P.upper) & (gq < 0))  # (B, T, D)
+        free = torch.cat([~fixed, torch.ones(B, T, 6, dtype=torch.bool, device=P.dev)], -1).to(P.dtype)
+        h = h * free[..., :, None] * free[..., None, :] + torch.diag_embed(1 - free)
+        g = g * free
+        c = coupling[:, None] * free[:, 1:] * free[:, :-1]  # (B, T-1, n): a held joint is coupled to nothing
+        step, solved = _block_tridiagonal_solve(P.damp(h, mu[:, None]), c, -g)
+        qd_c, bp_c, br_c = P.candidate(qd, base_pos, base_rot, step)
+        pos_c, rot_c, kp_c, ocols_c, fit_c = P.fit(qd_c, bp_c, br_c)
+        cost_c = frame_cost(fit_c, qd_c)
+        total, total_c = cost.sum(-1), cost_c.sum(-1)
+        ok = (total_c < total) & active & solved
+        o1, o2, o3 = ok[:, None, None], ok[:, None, None, None], ok[:, None, None, None, None]
+        qd, base_pos, base_rot = torch.where(o1, qd_c, qd), torch.where(o1, bp_c, base_pos), torch.where(o2, br_c, base_rot)
+        pos, kp, rot = torch.where(o2, pos_c, pos), torch.where(o2, kp_c, kp), torch.where(o3, rot_c, rot)
+        cost = torch.where(ok[:, None], cost_c, cost)
+        if P.M:
+            ocols = torch.where(o2, ocols_c, ocols)
+        mu = torch.where(active, torch.where(ok, mu / 3, mu * 4).clamp(1e-7, 1e6), mu)
+        done = it + 1
+        change = torch.where(ok, (total - total_c) / total.clamp_min(1e-12), torch.zeros_like(total))
+        active = active & ~(ok & (change < tol))
+        if not bool(active.any()):
+            break
+    if stats is not None:
+        stats["iterations"] = done
+        stats["cost"] = cost
+    return P.full_q(qd), base_pos, base_rot

@@ -1,0 +1,244 @@
+"""``mer shards solve``: the optimiser's solution for every training sample of a set of shards.
+
+For each shard file, every sample (window x target robot x augmentation variant) is retargeted by
+the optimiser (:func:`mer_models.retarget.inference.optimize_batch`: the same solver and goals as ``mer
+evaluate --methods optimize``) and stored in the shard's teacher file
+(:mod:`mer_data.shards.teacher`). Training then reads ``x`` from there.
+
+* **Batched**: samples of one target robot are solved together (same topology, no padding), up
+  to ``batch`` windows at a time.
+* **Resumable**: results go to ``<teacher>.partial`` and are flushed after every batch; a killed
+  run resumes from the samples already solved; the complete file is renamed into place at the
+  end, so a teacher file under its final name is always complete.
+* **Sharded**: ``shard_index``/``num_shards`` take every N-th shard file, so N jobs cover a set once.
+* **Consistent**: the solver configuration is stored; a complete file with another configuration
+  (or for another build of the shard) is refused unless ``force``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Sequence
+
+import h5py
+import numpy as np
+
+from mer_data.base.errors import MerError, ShardFormatError
+from mer_data.base.locks import hold_locks
+from mer_data.kinematics.rotations import matrix_to_axis_angle
+from mer_data.kinematics.scaling import SCALING_VERSION
+from mer_data.motion.samples import collate
+from mer_data.shards.dataset import ShardDataset
+from mer_data.shards.teacher import TEACHER_FORMAT, TEACHER_VERSION, teacher_path
+from mer_models.config import EnergyConfig
+from mer_models.retarget.inference import optimize_batch
+from mer_models.solver.ik import DEFAULT_SMOOTH
+from mer_models.solver.optimize import DEFAULT_GN_ITERS, FINE_OF_VERSION, OPTIMIZER_VERSION
+
+log = logging.getLogger(__name__)
+
+__all__ = ["SolverConfig", "solve_shards"]
+
+
+@dataclass(frozen=True)
+class SolverConfig:
+    """The teacher: the optimiser's settings (defaults: ``mer evaluate --methods optimize``).
+
+    Attributes:
+        energy: the energy weights.
+        gn_iters: most Levenberg-Marquardt iterations.
+        scaling: reference scaling (``segments`` or ``parts``, :mod:`mer_data.kinematics.scaling`).
+        smooth: weight of the optimiser's temporal prior (:data:`mer_models.solver.ik.DEFAULT_SMOOTH`).
+        scaling_version: :data:`mer_data.kinematics.scaling.SCALING_VERSION` of the goals (a teacher of older
+            goals is solved again).
+        optimizer_version: the optimiser's schedule (:data:`mer_models.solver.optimize.OPTIMIZER_VERSION`;
+            1 solves as the teachers written before version 2 did).
+        batch: windows solved together.
+    """
+
+    energy: EnergyConfig = EnergyConfig()
+    gn_iters: int = DEFAULT_GN_ITERS
+    scaling: str = "segments"
+    smooth: float = DEFAULT_SMOOTH
+    scaling_version: int = SCALING_VERSION
+    optimizer_version: int = OPTIMIZER_VERSION
+    batch: int = 64
+
+    def __post_init__(self) -> None:
+        if self.optimizer_version not in FINE_OF_VERSION:
+            raise MerError(f"optimizer_version {self.optimizer_version} is not one of {sorted(FINE_OF_VERSION)}",
+                           fix=f"leave it at the default ({OPTIMIZER_VERSION})")  # fmt: skip
+
+    def to_json(self) -> str:
+        d = dataclasses.asdict(self)
+        d.pop("batch")  # does not change the result
+        return json.dumps(d, sort_keys=True)
+
+
+def _create(path: Path, meta, S: int, J: int, solver: SolverConfig) -> h5py.File:
+    f = h5py.File(path, "w")
+    R, T = meta.num_rows, meta.window
+    chunk = (1, S, T)
+    f.create_dataset("q", (R, S, T, J), np.float32, chunks=chunk + (J,), fillvalue=0)
+    f.create_dataset("base_pos", (R, S, T, 3), np.float32, chunks=chunk + (3,), fillvalue=0)
+    f.create_dataset("base_rotvec", (R, S, T, 3), np.float32, chunks=chunk + (3,), fillvalue=0)
+    f.create_dataset("energy", (R, S), np.float32, fillvalue=np.nan)
+    f.create_dataset("solved", (R, S), bool, fillvalue=False)
+    f.attrs.update({
+        "format": TEACHER_FORMAT, "format_version": TEACHER_VERSION, "shard_build_id": meta.build_id,
+        "rows": R, "samples_per_row": S, "solver": solver.to_json(), "seconds": 0.0, "frames": 0,
+    })  # fmt: skip
+    return f
+
+
+def _open_partial(path: Path, meta, S: int, J: int, solver: SolverConfig) -> h5py.File:
+    """The partial file to continue, or a new one (a partial of another configuration, or one a
+    kill left unreadable, is started over)."""
+    if path.exists():
+        try:
+            f = h5py.File(path, "r+")
+            a = f.attrs
+            if (a.get("shard_build_id"), a.get("solver"), tuple(f["q"].shape)) == (meta.build_id, solver.to_json(), (meta.num_rows, S, meta.window, J)):
+                log.info("resuming %s (%d of %d samples solved)", path.name, int(f["solved"][()].sum()), meta.num_rows * S)
+                return f
+            f.close()
+            log.info("starting %s over: it was begun with another configuration or shard build", path.name)
+        except (OSError, KeyError) as exc:
+            log.warning("starting %s over: it cannot be read (%s)", path.name, exc)
+    return _create(path, meta, S, J, solver)
+
+
+def _check_complete(path: Path, meta, solver: SolverConfig, force: bool) -> bool:
+    """True when ``path`` already holds this solve; an incompatible file is refused unless ``force``."""
+    if not path.exists():
+        return False
+    try:
+        with h5py.File(path, "r") as f:
+            same = f.attrs.get("shard_build_id") == meta.build_id and f.attrs.get("solver") == solver.to_json()
+    except OSError:
+        same = False
+    if same:
+        return True
+    if not force:
+        raise MerError(
+            "a teacher file of another shard build or solver configuration exists",
+            path=path,
+            fix="pass --force to solve again (it is replaced when the new one is complete), or --out elsewhere",
+        )
+    return False
+
+
+def solve_shards(
+    paths: str | Path | Sequence[str | Path],
+    *,
+    solver: SolverConfig = SolverConfig(),
+    out: str | Path | None = None,
+    shard_index: int | None = None,
+    num_shards: int = 1,
+    force: bool = False,
+    device: str = "cpu",
+    progress: Callable[[int, int, str], None] | None = None,
+) -> list[dict]:
+    """Solve every sample of the shards at ``paths``; returns one record per shard file.
+
+    Args:
+        out: folder of the teacher files (default: ``teacher/`` beside each shard).
+        shard_index, num_shards: solve only shard files ``i`` with ``i % num_shards == shard_index``.
+        progress: ``progress(samples_done, samples_total, message)`` after every batch.
+
+    Each record: ``shard``, ``teacher`` (path), ``samples``, ``frames``, ``seconds``,
+    ``frames_per_s``, ``energy_mean``, ``status`` (``solved``, ``up to date``).
+    """
+    if num_shards < 1 or (shard_index is not None and not 0 <= shard_index < num_shards):
+        raise MerError(f"--shard-index {shard_index} is not in 0..{num_shards - 1}", fix="use 0 <= I < N")
+    items = [paths] if isinstance(paths, (str, Path)) else list(paths)
+    if out is None and any(str(p).startswith("hf://") for p in items):
+        raise MerError("shards read from the Hub live in the read-only Hub cache: the teacher files need a folder of their own",
+                       fix="pass --out DIR (and ShardDataset(..., teacher=DIR) when training)")  # fmt: skip
+    ds = ShardDataset(paths, teacher=None)
+    files = [i for i in range(len(ds.files)) if shard_index is None or i % num_shards == shard_index]
+    records = []
+    total = sum(ds.files[i].meta.num_rows * ds.files[i].meta.samples_per_row for i in files)
+    done_all = 0
+    for fi in files:
+        shard, meta = ds.paths[fi], ds.files[fi].meta
+        final = teacher_path(shard, out)
+        S = meta.samples_per_row
+        n = meta.num_rows * S
+        if _check_complete(final, meta, solver, force):
+            with h5py.File(final, "r") as f:
+                rec = {"shard": str(shard), "teacher": str(final), "samples": n, "frames": int(f.attrs["frames"]),
+                       "seconds": float(f.attrs["seconds"]), "energy_mean": float(np.nanmean(f["energy"][()])), "status": "up to date"}  # fmt: skip
+            rec["frames_per_s"] = rec["frames"] / max(rec["seconds"], 1e-9)
+            records.append(rec)
+            done_all += n
+            if progress:
+                progress(done_all, total, f"{shard.name} up to date")
+            continue
+        final.parent.mkdir(parents=True, exist_ok=True)
+        with hold_locks(final.parent, [final.name], MerError):
+            records.append(_solve_file(ds, fi, final, solver, device, progress, done_all, total))
+        done_all += n
+    ds.close()
+    return records
+
+
+def _solve_file(ds: ShardDataset, fi: int, final: Path, solver: SolverConfig, device: str, progress, done_before: int, total: int) -> dict:
+    meta = ds.files[fi].meta
+    S, T = meta.samples_per_row, meta.window
+    J = meta.max_target_nodes
+    partial = final.with_name(final.name + ".partial")
+    f = _open_partial(partial, meta, S, J, solver)
+    try:
+        solved = f["solved"][()]
+        slots = ds.slot_targets(fi)  # (rows, S): target index of each slot
+        seconds, frames = float(f.attrs["seconds"]), int(f.attrs["frames"])
+        done = done_before + int(solved.sum())
+        for t_idx, t_name in enumerate(meta.targets):
+            todo = [(r, k) for r in range(meta.num_rows) for k in range(S) if int(slots[r, k]) == t_idx and not solved[r, k]]
+            for a in range(0, len(todo), solver.batch):
+                part = todo[a : a + solver.batch]
+                samples = [ds.slot_sample(fi, r, k) for r, k in part]
+                t0 = time.perf_counter()
+                motion = optimize_batch(solver.energy, collate(samples, scaling=solver.scaling), gn_iters=solver.gn_iters,
+                                        smooth=solver.smooth, fine=FINE_OF_VERSION[solver.optimizer_version], device=device)
+                dt = time.perf_counter() - t0
+                q = motion["q"].float().cpu().numpy()
+                pos = motion["base_pos"].float().cpu().numpy()
+                rv = matrix_to_axis_angle(motion["base_rot"].float()).cpu().numpy()
+                en = motion["energy"].float().cpu().numpy()
+                if not (np.isfinite(q).all() and np.isfinite(pos).all() and np.isfinite(rv).all()):
+                    raise MerError(f"the optimiser returned non-finite values for target {t_name}", path=ds.paths[fi],
+                                   fix="check the shard with mer shards inspect; report it with the shard file")  # fmt: skip
+                for i, (r, k) in enumerate(part):
+                    jt = q.shape[-1]
+                    f["q"][r, k, :, :jt] = q[i]
+                    f["base_pos"][r, k] = pos[i]
+                    f["base_rotvec"][r, k] = rv[i]
+                    f["energy"][r, k] = en[i]
+                    f["solved"][r, k] = True
+                seconds += dt
+                frames += len(part) * T
+                f.attrs["seconds"], f.attrs["frames"] = seconds, frames
+                f.flush()
+                done += len(part)
+                if progress:
+                    progress(done, total, f"{ds.paths[fi].name} -> {t_name}, {frames / max(seconds, 1e-9):.0f} frames/s")
+        energy = f["energy"][()]
+        if not f["solved"][()].all():
+            raise ShardFormatError("some samples were not solved", path=partial)
+        f.attrs["shard_file"] = ds.paths[fi].name
+    finally:
+        f.close()
+    os.replace(partial, final)
+    rec = {"shard": str(ds.paths[fi]), "teacher": str(final), "samples": meta.num_rows * S, "frames": frames,
+           "seconds": round(seconds, 3), "frames_per_s": frames / max(seconds, 1e-9),
+           "energy_mean": float(np.mean(energy)), "status": "solved"}  # fmt: skip
+    log.info("%s: %d samples, %.0f frames/s", final.name, rec["samples"], rec["frames_per_s"])
+    return rec
