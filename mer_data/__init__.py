@@ -1,5 +1,12 @@
-"""mer_data: robot skeleton graphs from URDF, the robot registry, forward kinematics, joint maps,
-and the LAFAN1 training-shard tooling. Depends on no part of :mod:`mer_models`.
+"""mer_data: robots, their kinematics, source motion and training shards. Depends on no part of
+:mod:`mer_models`.
+
+* :mod:`.skeleton` - the central type, :class:`Skeleton` (the paper's skeleton graph);
+* :mod:`.robots` - URDF + robot card -> a registered robot and its skeleton; the registry;
+* :mod:`.kinematics` - FK, rotations, joint maps, the scaled goals;
+* :mod:`.motion` - source-motion readers, windows, features, splits, training samples;
+* :mod:`.shards` - ``mer shards``: HDF5 / MCAP training shards and :class:`~.shards.ShardDataset`;
+* :mod:`.synthesis` - synthetic motion of any robot; :mod:`.base` - errors, limits, safe I/O.
 
 The names below are imported lazily (PEP 562), so ``import mer_data.base.errors`` (or the model zoo's
 registry) does not pay for importing torch; ``from mer_data import Skeleton`` works as before.

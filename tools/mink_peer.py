@@ -13,7 +13,7 @@ mink and mujoco are **benchmark-only** dependencies, not runtime dependencies of
 
 The MuJoCo model is compiled from the robot's own URDF (``mer_data/robots/<name>/<name>.urdf``) by
 MuJoCo's URDF importer, so its kinematics are independent of mer's URDF parser and skeleton
-builder (``tests/test_mink_peer.py`` checks that both FKs agree). Before compiling:
+builder (``tests/tools/test_mink_peer.py`` checks that both FKs agree). Before compiling:
 
 * visual and collision geometry, ``<gazebo>``, ``<transmission>`` and ``<mujoco>`` elements are
   stripped (meshes are not shipped); static bodies are kept (``fusestatic="false"``) so that every

@@ -4,7 +4,7 @@
     PYTHONPATH=$PWD python tools/render_catalogue.py --sync   # also copy every card to mer_models/cards
 
 Published and bundled cards are never overwritten (they come from `mer zoo publish`). The repository's
-cards/models is the source; mer_models/cards is its packaged copy (tests/test_zoo_cards.py checks
+cards/models is the source; mer_models/cards is its packaged copy (tests/models/hub/test_cards.py checks
 they are identical).
 """
 

@@ -3,7 +3,7 @@
 #
 #   OUT=/path/to/out tools/train_device.sh [--config base|paper] [--minutes M] [--eval-input DIR] [--ref-group K]
 #       [--init DIR] [--batch-size B] [--lr LR] [--warmup N] [--lr-decay-steps N] [--lr-min-ratio R] [--ffn F]
-#   OUT=/tmp/x tools/train_device.sh --dry-run [--init mer_models/bundled/mer-base]   # CPU, 2 training steps (tests/test_train_device.py)
+#   OUT=/tmp/x tools/train_device.sh --dry-run [--init mer_models/bundled/mer-base]   # CPU, 2 training steps (tests/tools/test_train_device.py)
 #
 # --init continues from a checkpoint's weights (fresh optimiser), e.g. the bundled mer-base, instead of
 # training from scratch; the rate options override the preset's (a continuation wants a lower --lr and a

@@ -33,7 +33,7 @@ def finite_difference(x: torch.Tensor, fps: float, dim: int = -3) -> torch.Tenso
     """Time derivative along ``dim`` [unit/s], second order everywhere: ``torch.gradient(edge_order=2)``.
 
     Interior: ``(x[t+1] - x[t-1]) / 2h``; ends: ``(-3 x0 + 4 x1 - x2) / 2h`` and its mirror, as
-    ``numpy.gradient(..., edge_order=2)`` (tests/test_windows.py). ``torch.gradient`` needs 3 frames
+    ``numpy.gradient(..., edge_order=2)`` (tests/data/motion/test_windows.py). ``torch.gradient`` needs 3 frames
     for that; with 2 this is the first-order difference, with fewer zeros. Differentiable (autograd).
     """
     T = x.shape[dim]

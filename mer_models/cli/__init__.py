@@ -1,4 +1,9 @@
-"""The ``mer`` command: one thin parser per job, each calling one library function."""
+"""The ``mer`` command: one thin parser per job, each calling one library function.
+
+One module per command: :mod:`.robots` (``mer robots``), :mod:`.shards` (``mer shards``; ``solve``
+is :mod:`.solve`), :mod:`.train`, :mod:`.finetune`, :mod:`.retarget`, :mod:`.evaluate`, :mod:`.zoo`,
+:mod:`.demo` (with :mod:`.demo_walk`). Each parses, resolves names once, and calls the library.
+"""
 
 from __future__ import annotations
 

@@ -64,7 +64,7 @@ NPZ_FPS = 50.0
 #: Joint/body layouts of npz outputs: mjlab (URDF order, MuJoCo's) or isaaclab (breadth-first, BeyondMimic's).
 NPZ_ORDERS = ("mjlab", "isaaclab")
 #: Robots whose breadth-first order :func:`isaaclab_order` has been checked against Isaac Lab's
-#: published articulation order (tests/test_npz_order.py); others are refused for ``isaaclab``.
+#: published articulation order (tests/models/export/test_npz_order.py); others are refused for ``isaaclab``.
 ISAACLAB_VERIFIED = frozenset({"g1"})
 
 

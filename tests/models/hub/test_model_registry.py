@@ -13,7 +13,7 @@ from mer_models import zoo
 from mer_models.hub.fromckpt import card_from_checkpoint
 from mer_models.hub.registry import Registry, write_card
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 
 
 @pytest.fixture

@@ -14,7 +14,7 @@ from zoo_helpers import TOKEN, client_env, make_checkpoint
 from mer_models.cli import main
 from mer_models.hub.card import read_card
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 
 
 def _mer(args: list[str], env: dict[str, str]) -> subprocess.CompletedProcess:

@@ -164,7 +164,7 @@ def test_registered_robot_matches_builtin_when_given_the_same_card(tmp_path, cap
 
 
 def test_demo_refuses_an_unknown_show_robot_before_doing_anything(capsys, tmp_path):
-    # the whole demo runs in tests/test_shards_cli.py::test_demo
+    # the whole demo runs in tests/data/shards/test_shards_cli.py::test_demo
     code, out, err = run(capsys, "demo", "--out", str(tmp_path / "d"), "--show", "nobot")
     assert code == 1 and "--show 'nobot'" in err and "mer_demo_humanoid" in err
     assert out == "" and not (tmp_path / "d").exists()

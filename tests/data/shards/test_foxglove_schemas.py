@@ -19,7 +19,7 @@ from mer_models.cli import main
 
 pytest.importorskip("jsonschema", reason="jsonschema validates the MCAP messages (pip install -e '.[dev]')")
 
-VENDORED = Path(__file__).resolve().parents[1] / "mer_data" / "shards" / "foxglove_schemas"
+VENDORED = Path(__file__).resolve().parents[3] / "mer_data" / "shards" / "foxglove_schemas"
 
 
 def _schemas(path) -> dict[str, tuple[str, bytes]]:

@@ -14,7 +14,7 @@ from mer_models.config import SamplerConfig
 from mer_models.diffusion.model import RetargetModel
 from mer_models.retarget.inference import sample_conditions
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tools"))
 from overfit_probe import ffn_width, widen_ffn  # noqa: E402
 
 

@@ -18,7 +18,7 @@ from mer_models.cli import main
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="fork and pids: Linux")
 FORK = multiprocessing.get_context("fork")
 CLIPS = {"dance1_subject1": (2.1, 0.0, 0.1), "walk1_subject1": (2.1, 0.5, 0.0)}
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 LOCK = ".g1-train-00000-of-00001.h5.lock"
 
 

@@ -17,7 +17,7 @@ from mer_models.hub.names import validate_filename, validate_model_name, validat
 from mer_models.hub.registry import packaged_cards_dir, source_cards_dir
 from mer_models.hub.render import render_card
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 C1, C2 = "a" * 40, "0123456789abcdef0123456789abcdef01234567"
 
 

@@ -14,7 +14,7 @@ from shard_helpers import make_input
 
 from mer_data.shards import open_shard
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 CLIPS = {"dance1_subject1": (2.5, 0.0, 0.1), "walk1_subject1": (2.2, 1.0, 0.0)}
 
 

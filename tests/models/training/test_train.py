@@ -20,7 +20,7 @@ from mer_models.config import preset
 from mer_models.diffusion.model import RetargetModel
 from mer_models.training.train import clean_samples, native_bf16, train
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 
 
 def test_training_logs_losses_and_writes_a_checkpoint(tmp_path):

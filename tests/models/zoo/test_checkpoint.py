@@ -17,7 +17,7 @@ from mer_models.diffusion.model import RetargetModel
 from mer_models.hub.checkpoint_files import save_checkpoint
 from mer_models.zoo.checkpoint import check_robot, load_checkpoint, resolve_model
 
-PACKAGE = Path(__file__).resolve().parents[1] / "mer_models"
+PACKAGE = Path(__file__).resolve().parents[3] / "mer_models"
 
 
 @pytest.fixture

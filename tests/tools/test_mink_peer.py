@@ -18,7 +18,7 @@ import torch  # noqa: E402
 
 from mer_data.kinematics.fk import fk_skeleton, skeleton_tensors  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tools"))
 import mink_peer  # noqa: E402
 
 FK_ROBOTS = ("g1", "h1", "atlas", "talos", "valkyrie")  # talos: locked grippers + their mimics

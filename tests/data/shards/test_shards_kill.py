@@ -14,7 +14,7 @@ from shard_helpers import assert_same_arrays, build, make_input, shard_arrays
 
 from mer_data.shards import open_shard
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 CLIPS = {f"walk{i}_subject{i % 5 + 1}": (5.0, 0.3 * i, 0.05 * (i % 3 - 1)) for i in range(1, 9)}
 
 

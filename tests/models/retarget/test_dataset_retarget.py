@@ -24,7 +24,7 @@ from mer_data.robots.registry import get_skeleton
 from mer_models.retarget.clip import retarget_features, sequence_metrics, source_features
 from mer_models.retarget.dataset import _segments, plan_jobs, retarget_dataset
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 CLIPS = {"walk1_subject1": 150, "dance1_subject2": 90, "run1_subject2": 40}
 
 

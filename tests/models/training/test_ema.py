@@ -19,7 +19,7 @@ from mer_models.hub.checkpoint_files import TRAINED_PREFIX
 from mer_models.training.train import ema_decay, train, update_average
 from mer_models.zoo.checkpoint import load_checkpoint
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 
 
 def ema_run(decay: float = 0.9):
