@@ -48,7 +48,7 @@ DEFAULT_BODY_PARTS: tuple[BodyPart, ...] = (
 
 _CARD_FIELDS = (
     "name", "urdf", "description", "license", "source", "keypoints", "locked", "nominal",
-    "body_parts", "lafan1_columns", "notes",
+    "body_parts", "lafan1_columns", "collision", "notes",
 )  # fmt: skip
 _KP_FIELDS = ("link", "offset", "note")
 
@@ -73,6 +73,7 @@ class RobotCard:
     nominal: Mapping[str, float] = field(default_factory=dict)
     body_parts: tuple[BodyPart, ...] = DEFAULT_BODY_PARTS
     lafan1_columns: tuple[str, ...] | None = None
+    collision: str | None = None
     description: str = ""
     license: str = ""
     source: str = ""
@@ -231,6 +232,14 @@ def parse_card(text: str, path: str = "<card>") -> RobotCard:
     cols = data.get("lafan1_columns")
     if cols is not None and (not isinstance(cols, list) or not all(isinstance(c, str) for c in cols)):
         raise RobotCardError("lafan1_columns must be a list of joint names", path=path, element="lafan1_columns")
+    coll = data.get("collision")
+    if coll is not None and (not isinstance(coll, str) or not coll or Path(coll).name != coll or coll.startswith(".")):
+        raise RobotCardError(
+            f"collision must be the name of a file beside the card, got {coll!r}",
+            path=path,
+            element="collision",
+            fix="e.g. collision: collision.json",
+        )
     return RobotCard(
         name=str(data["name"]),
         urdf=str(data["urdf"]),
@@ -239,6 +248,7 @@ def parse_card(text: str, path: str = "<card>") -> RobotCard:
         nominal=_float_map(data.get("nominal"), path, "nominal"),
         body_parts=parts,
         lafan1_columns=None if cols is None else tuple(cols),
+        collision=coll,
         description=str(data.get("description", "")),
         license=str(data.get("license", "")),
         source=str(data.get("source", "")),
@@ -273,6 +283,8 @@ def dump_card(card: RobotCard) -> str:
     data["body_parts"] = {b.name: {"start": b.start, "keypoints": list(b.keypoints)} for b in card.body_parts}
     if card.lafan1_columns:
         data["lafan1_columns"] = list(card.lafan1_columns)
+    if card.collision:
+        data["collision"] = card.collision
     if card.notes:
         data["notes"] = card.notes
     return yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=100)

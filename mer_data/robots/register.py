@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 from dataclasses import dataclass, field
@@ -18,6 +19,7 @@ from .builder import build_skeleton
 from .card import DEFAULT_BODY_PARTS, RobotCard, parse_keypoints
 from .keypoints import KeypointProposal, propose_robot
 from .registry import Robot, validate_robot_name, write_robot
+from .shapes import COLLISION_FILE, CollisionFile, dump_collision, shapes_from_urdf
 from .urdf import UrdfModel, load_urdf
 
 log = logging.getLogger(__name__)
@@ -160,8 +162,22 @@ def register_robot(
     present = sum(v >= 0 for v in skel.keypoints.values())
     if present < 4:
         warnings.append(f"only {present} key points: retargeting has little to follow")
+    shapes, errors = shapes_from_urdf(urdf)  # meshes under the URDF's folder only, as convex hulls
+    if shapes.missing:
+        warnings.append(
+            f"collision meshes of {len(shapes.missing)} link(s) could not be read ({', '.join(shapes.missing[:6])}"
+            f"{', ...' if len(shapes.missing) > 6 else ''}): those bodies get capsules fitted along the links "
+            "(put the meshes where the URDF points, under its folder, and register again with --force)"
+        )
+    extra = {}
+    if shapes.links:
+        shapes = CollisionFile(name, shapes.links, f"registered from {urdf_path.name}: primitives as in the URDF, meshes as "
+                               f"convex hulls (at most 48 vertices, worst error {1000 * max(errors.values(), default=0.0):.1f} mm)",
+                               shapes.missing)  # fmt: skip
+        card = dataclasses.replace(card, collision=COLLISION_FILE)
+        extra[COLLISION_FILE] = dump_collision(shapes)
     if dry_run:
         return RegistrationReport(None, proposals, warnings, skel, card, urdf_path, notes)
-    robot, _ = write_robot(card, urdf_path, force=force)
+    robot, _ = write_robot(card, urdf_path, force=force, extra_files=extra)
     log.info("registered %s", robot.skeleton)
     return RegistrationReport(robot, proposals, warnings, robot.skeleton, card, urdf_path, notes)

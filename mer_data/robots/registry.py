@@ -173,11 +173,12 @@ def _sweep_stale() -> None:
 
 
 def write_robot(
-    card: RobotCard, urdf_source: Path, *, force: bool = False
+    card: RobotCard, urdf_source: Path, *, force: bool = False, extra_files: dict[str, str] | None = None
 ) -> tuple[Robot, UrdfModel]:
     """Validate ``card`` + URDF and install them as a user robot, atomically.
 
-    The URDF bytes are copied as they are; the card is written with ``urdf: <name>.urdf``.
+    The URDF bytes are copied as they are; the card is written with ``urdf: <name>.urdf``;
+    ``extra_files`` (file name → text, e.g. the card's ``collision.json``) are written beside them.
 
     Raises:
         RegistryError: invalid or built-in name; RobotExistsError: taken and not ``force``;
@@ -204,6 +205,10 @@ def write_robot(
         shutil.copyfile(urdf_source, tmp / urdf_name)
         written_card = dataclasses.replace(card, urdf=urdf_name, path=str(tmp / CARD_FILE))
         (tmp / CARD_FILE).write_text(dump_card(written_card))
+        for fname, text in (extra_files or {}).items():
+            if Path(fname).name != fname or fname in (CARD_FILE, urdf_name):
+                raise ValueError(f"extra robot file {fname!r} must be a plain file name other than the card's and the URDF's")
+            (tmp / fname).write_text(text, encoding="utf-8")
         # validate exactly what was written, before it becomes visible
         parsed["urdf"] = load_urdf(tmp / urdf_name)
         build_skeleton(parsed["urdf"], load_card(tmp / CARD_FILE))

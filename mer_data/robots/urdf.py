@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import io
 import logging
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -37,6 +38,7 @@ class UrdfJoint:
         origin: (4, 4) parent-link frame ← joint frame at zero angle [m].
         axis: (3,) joint axis in the joint frame (unit length for movable joints).
         lower, upper: position limits [rad]; ``None`` where the URDF gives none.
+        velocity: the ``<limit velocity>`` [rad/s]; ``None`` where absent, zero or not finite.
         mimic: ``(master_joint, multiplier, offset)`` or ``None``.
         line: 1-based line of the element in the file.
     """
@@ -51,6 +53,7 @@ class UrdfJoint:
     upper: float | None
     mimic: tuple[str, float, float] | None
     line: int
+    velocity: float | None = None
 
 
 @dataclass(frozen=True)
@@ -68,6 +71,8 @@ class UrdfModel:
             shapes in the link frame [m] (meshes are not loaded); used to propose toe key points.
         inertial_coms: link → (3,) centre of mass in the link frame [m], where the URDF gives an
             ``<inertial>`` (used to tell which way a link extends).
+        collisions: link → its ``<collision>`` elements as read, each ``{"type": box|sphere|cylinder|mesh,
+            "origin": (4, 4), "size" | "radius", "length" | "filename", "scale"}`` (meshes not loaded).
         warnings: what was read but ignored (e.g. a ``<mimic>`` on a fixed joint), one sentence each.
     """
 
@@ -80,6 +85,7 @@ class UrdfModel:
     collision_points: dict[str, np.ndarray]
     inertial_coms: dict[str, np.ndarray] = field(default_factory=dict)
     warnings: tuple[str, ...] = ()
+    collisions: dict[str, tuple[dict, ...]] = field(default_factory=dict)
     # lookups built once (linear in the file): name -> joint, link -> child joints / parent joint
     _by_name: dict[str, UrdfJoint] = field(init=False, repr=False, compare=False)
     _children: dict[str, tuple[UrdfJoint, ...]] = field(init=False, repr=False, compare=False)
@@ -180,6 +186,7 @@ def _read_values_with_yourdfpy(root, checked: list[CheckedJoint], path: str) -> 
                 upper=None if lim is None or lim.upper is None else float(lim.upper),
                 mimic=mimic,
                 line=c.line,
+                velocity=_velocity(lim),
             )
         )
     return {
@@ -187,7 +194,17 @@ def _read_values_with_yourdfpy(root, checked: list[CheckedJoint], path: str) -> 
         "collision_points": _collision_points(model),
         "inertial_coms": _inertial_coms(model),
         "warnings": tuple(warnings),
+        "collisions": _collisions(model),
     }
+
+
+def _velocity(lim) -> float | None:
+    v = None if lim is None else getattr(lim, "velocity", None)
+    try:
+        v = None if v is None else float(v)
+    except (TypeError, ValueError):
+        return None
+    return v if v is not None and math.isfinite(v) and v > 0 else None
 
 
 def _inertial_coms(model) -> dict[str, np.ndarray]:
@@ -201,6 +218,31 @@ def _inertial_coms(model) -> dict[str, np.ndarray]:
         com = np.asarray(origin, dtype=np.float64)[:3, 3]
         if np.isfinite(com).all() and np.abs(com).max() <= MAX_LENGTH_M:
             out[link.name] = com
+    return out
+
+
+def _collisions(model) -> dict[str, tuple[dict, ...]]:
+    """Every link's ``<collision>`` elements (see :attr:`UrdfModel.collisions`); unreadable ones are skipped."""
+    out: dict[str, tuple[dict, ...]] = {}
+    for link in model.robot.links:
+        items = []
+        for col in link.collisions or ():
+            g = col.geometry
+            if g is None:
+                continue
+            t = np.asarray(col.origin if col.origin is not None else np.eye(4), dtype=np.float64)
+            if g.box is not None:
+                items.append({"type": "box", "origin": t, "size": tuple(float(x) for x in g.box.size)})
+            elif g.sphere is not None:
+                items.append({"type": "sphere", "origin": t, "radius": float(g.sphere.radius)})
+            elif g.cylinder is not None:
+                items.append({"type": "cylinder", "origin": t, "radius": float(g.cylinder.radius), "length": float(g.cylinder.length)})
+            elif g.mesh is not None and g.mesh.filename:
+                scale = g.mesh.scale
+                sc = (1.0, 1.0, 1.0) if scale is None else tuple(float(x) for x in np.broadcast_to(np.asarray(scale, float), 3))
+                items.append({"type": "mesh", "origin": t, "filename": str(g.mesh.filename), "scale": sc})
+        if items:
+            out[link.name] = tuple(items)
     return out
 
 

@@ -122,6 +122,9 @@ def _dataset(args) -> int:
         raise MerError("--video writes one file's video; a dataset run does not make videos",
                        fix="retarget the clip you want to see on its own: mer retarget CLIP.csv --source ... --target ... --video OUT.gif")
     method = args.method or "optimize"
+    check_refine(args)
+    if args.refine and method != "diffusion":
+        raise MerError("--refine refines a model's output", fix="use it with --method diffusion (the optimiser alone needs no refinement)")
     if args.bf16 and method != "diffusion":
         raise MerError("--bf16 runs the model's network in bfloat16; the optimiser has no network", fix="drop --bf16, or add --method diffusion")
     checkpoint, kw = None, {}
@@ -130,7 +133,8 @@ def _dataset(args) -> int:
         from mer_models.zoo.checkpoint import resolve_model
 
         checkpoint = resolve_model(args.model or DEFAULT_MODEL, args.device)
-        kw = {"steps": args.steps, "guidance": args.guidance, "seed": args.seed, "allow_unseen": args.allow_unseen, "bf16": args.bf16}
+        kw = {"steps": args.steps, "guidance": args.guidance, "seed": args.seed, "allow_unseen": args.allow_unseen, "bf16": args.bf16,
+              "refine": args.refine}  # fmt: skip
     bar = None
     if not args.quiet:
         from tqdm import tqdm

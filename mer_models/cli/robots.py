@@ -92,13 +92,32 @@ def cmd_list(args) -> int:
     return 0
 
 
+def _geometry(r) -> dict:
+    """What the robot collides with: shapes by source, and the bodies that only have fitted capsules."""
+    from mer_data.robots.collision import collision_model
+
+    m = collision_model(r)
+    fitted = sorted({m.link[i] for i in range(m.num_shapes) if m.source[i] == "fitted"})
+    return {"file": r.card.collision, "shapes": m.counts(), "fitted_bodies": fitted, "missing_meshes": list(m.missing),
+            "checked_pairs": int(len(m.pairs))}  # fmt: skip
+
+
 def cmd_show(args) -> int:
     r = load_robot(args.name)
     s = r.skeleton
+    geo = _geometry(r)
     if args.json:
-        print(json.dumps(robot_json(s, source="built-in" if r.builtin else "user", urdf=str(r.urdf_path)), indent=2))
+        print(json.dumps({**robot_json(s, source="built-in" if r.builtin else "user", urdf=str(r.urdf_path)), "collision": geo},
+                         indent=2))  # fmt: skip
         return 0
     print(skeleton_table(s, description=r.card.description, urdf=str(r.urdf_path), source="built-in" if r.builtin else "user"))
+    names = {"mesh": "mesh hulls", "primitive": "primitives", "fitted": "fitted capsules"}
+    counts = ", ".join(f"{n} {names[k]}" for k, n in geo["shapes"].items())
+    print(f"collision ({geo['file'] or 'from the URDF'}): {counts}; {geo['checked_pairs']} body pairs checked for self-penetration")
+    if geo["fitted_bodies"]:
+        print(f"  fitted capsules (no geometry in the description): {', '.join(geo['fitted_bodies'])}")
+    if geo["missing_meshes"]:
+        print(f"  meshes that could not be read: {', '.join(geo['missing_meshes'])}")
     return 0
 
 

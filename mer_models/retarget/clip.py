@@ -293,7 +293,7 @@ def retarget_file(
 
 
 def sequence_metrics(
-    reference: np.ndarray, source: Skeleton, motion: TargetMotion, *, prepared: tuple | None = None
+    reference: np.ndarray, source: Skeleton, motion: TargetMotion, *, prepared: tuple | None = None, geometry=None
 ) -> dict[str, float]:
     """The paper's metrics (:func:`mer_models.retarget.metrics.window_metrics`) of a whole retargeted motion.
 
@@ -302,6 +302,8 @@ def sequence_metrics(
         source: the source skeleton; ``motion``: the result (world frame, same frames).
         prepared: :func:`~mer_models.retarget.long_horizon.prepare_reference` of ``reference`` for this
             target, when the caller has it (saves computing the goals again).
+        geometry: the target's :class:`~mer_data.robots.collision.CollisionModel`: adds the artifact
+            metrics (:func:`mer_models.retarget.artifacts.artifact_metrics`).
 
     Returns:
         metric name -> value over the whole motion (``g_mpbpe`` [m], ``mpboe`` [rad], ``mpbve`` [m/s],
@@ -320,4 +322,9 @@ def sequence_metrics(
     batch["ref_rot_mask"] = torch.from_numpy(rot_mask)[None]
     out = {"q": torch.from_numpy(np.asarray(motion.q))[None], "base_pos": torch.from_numpy(np.asarray(motion.base_pos) - shift)[None],
            "base_rot": torch.from_numpy(np.asarray(motion.base_rot))[None]}
-    return {k: float(v[0]) for k, v in window_metrics(out, batch, motion.fps).items()}
+    metrics: dict = {k: float(v[0]) for k, v in window_metrics(out, batch, motion.fps).items()}
+    if geometry is not None:
+        from .artifacts import motion_artifacts
+
+        metrics.update(motion_artifacts(motion.q, motion.base_pos, motion.base_rot, motion.fps, tgt, geometry, reference, source))
+    return metrics

@@ -40,6 +40,7 @@ from mer_data.base.errors import MerError
 from mer_data.kinematics.jointmap import joint_map
 from mer_data.kinematics.rotations import axis_angle_to_matrix
 from mer_data.motion.samples import TrainingSample, collate
+from mer_data.robots.collision import collision_model
 from mer_data.robots.registry import Robot, as_robot
 from mer_data.skeleton import Skeleton
 from mer_models.batch import graph_from_batch
@@ -48,6 +49,7 @@ from mer_models.export.writers import NPZ_FPS, TargetMotion, write_csv, write_np
 from mer_models.solver.optimize import optimize_motion
 from mer_models.zoo.checkpoint import Checkpoint
 
+from .artifacts import ARTIFACT_KEYS
 from .clip import MODEL_FPS, retarget_features_many, sequence_metrics, source_features
 from .long_horizon import prepare_reference
 
@@ -56,7 +58,7 @@ log = logging.getLogger(__name__)
 __all__ = ["FORMATS", "Job", "find_clips", "plan_jobs", "retarget_dataset", "format_summary"]
 
 FORMATS = ("csv", "npz")
-SUMMARY_KEYS = ("g_mpbpe", "mpboe", "mpbve", "jerk_frame", "limit_violation")
+SUMMARY_KEYS = ("g_mpbpe", "mpboe", "mpbve", "jerk_frame", "limit_violation", *ARTIFACT_KEYS, "selfpen_worst", "speed_worst")
 
 
 @dataclass(frozen=True)
@@ -191,15 +193,20 @@ def _finish(c: _Clip, target: Robot, src: Skeleton, formats: Sequence[str], meth
     return _write(c.job, target, motion, c.world_feats, src, formats, method, seconds, prepared, npz_fps)
 
 
+def _finite_or_none(v):
+    """JSON has no NaN: an undefined metric (no contact frame, say) is written as null."""
+    return None if isinstance(v, float) and not np.isfinite(v) else v
+
+
 def _write(job: Job, target: Robot, motion: TargetMotion, world_feats: np.ndarray, src: Skeleton, formats, method: str,
            seconds: float, prepared: tuple | None = None, npz_fps: float | None = NPZ_FPS) -> dict:  # fmt: skip
     if "csv" in formats:
         write_csv(job.output("csv"), motion, robot=target)
     if "npz" in formats:
         write_npz(job.output("npz"), motion, fps=npz_fps, robot=target)
-    metrics = sequence_metrics(world_feats, src, motion, prepared=prepared)
+    metrics = sequence_metrics(world_feats, src, motion, prepared=prepared, geometry=collision_model(target))
     row = {"clip": job.clip, "target": job.target, "frames": motion.num_frames, "method": method, "seconds": round(seconds, 3),
-           **{k: metrics[k] for k in SUMMARY_KEYS}}  # fmt: skip
+           **{k: _finite_or_none(metrics.get(k)) for k in SUMMARY_KEYS}}  # fmt: skip
     atomic_write(job.output("metrics"), json.dumps(row, indent=1) + "\n")
     return row
 
@@ -232,7 +239,8 @@ def retarget_dataset(
         method: ``optimize`` (batched across clips) or ``diffusion`` (``checkpoint`` required).
         formats: any of :data:`FORMATS`; the metrics file is always written; npz_fps: npz frame rate [Hz].
         progress: called with (pairs done, pairs to do) of this run's work.
-        model_kw: sampler options for ``diffusion`` (``steps``, ``guidance``, ``seed``, ``allow_unseen``, ``bf16``).
+        model_kw: options of ``diffusion`` (``steps``, ``guidance``, ``seed``, ``allow_unseen``, ``bf16``, and
+            ``refine``: at most that many optimiser iterations from the model's output, as for one file).
 
     Returns:
         ``{"jobs", "done_before", "done_now", "frames", "seconds", "frames_per_second", "rows"}``;
@@ -270,7 +278,7 @@ def retarget_dataset(
                                              fps=MODEL_FPS, **model_kw)  # fmt: skip
             seconds = (time.perf_counter() - t0) / len(cjobs)  # the pass is shared: each pair gets its share
             for j, res in zip(cjobs, results):
-                _write(j, robots[j.target], res.motion, world, src, formats, method, seconds, res.prepared, npz_fps)
+                _write(j, robots[j.target], res.motion, world, src, formats, res.method, seconds, res.prepared, npz_fps)
                 frames_done += res.motion.num_frames
                 pairs_done += 1
                 if progress is not None:
@@ -307,8 +315,9 @@ def retarget_dataset(
     for j in jobs:
         if j.done():
             rows.append(json.loads(j.output("metrics").read_text()))
+    label = f"diffusion+refine{model_kw['refine']}" if method == "diffusion" and model_kw.get("refine") else method
     summary = {
-        "source": source, "targets": sorted(set(targets)), "method": method, "jobs": len(jobs),
+        "source": source, "targets": sorted(set(targets)), "method": label, "jobs": len(jobs),
         "done_before": len(jobs) - len(todo), "done_now": len(todo), "frames": frames_done, "seconds": round(seconds, 3),
         "frames_per_second": round(frames_done / seconds, 1) if seconds > 0 and frames_done else None, "rows": rows,
     }  # fmt: skip
@@ -324,11 +333,18 @@ def retarget_dataset(
 
 def format_summary(summary: dict) -> str:
     """The rows as a text table (one line per clip and target) and the totals."""
-    head = f"{'target':10s} {'clip':28s} {'frames':>7s} {'g-mpbpe[m]':>11s} {'mpboe[rad]':>11s} {'jerk[r/f3]':>11s} {'limits':>7s}"
+    head = (f"{'target':10s} {'clip':28s} {'frames':>7s} {'g-mpbpe[m]':>11s} {'mpboe[rad]':>11s} {'jerk[r/f3]':>11s} {'limits':>7s}"
+            f" {'floor<-1cm':>10s} {'skate[m/s]':>10s} {'selfpen>1cm':>11s} {'>vel.lim':>8s}")  # fmt: skip
     lines = [head]
+
+    def f(r: dict, k: str, width: int, fmt: str) -> str:
+        v = r.get(k)
+        return f"{v:{width}{fmt}}" if isinstance(v, (int, float)) and np.isfinite(v) else f"{'-':>{width}s}"
+
     for r in sorted(summary["rows"], key=lambda r: (r["target"], r["clip"])):
         lines.append(f"{r['target']:10s} {r['clip'][:28]:28s} {r['frames']:7d} {r['g_mpbpe']:11.4f} {r['mpboe']:11.3f} "
-                     f"{r['jerk_frame']:11.4f} {r['limit_violation']:7.3f}")  # fmt: skip
+                     f"{r['jerk_frame']:11.4f} {r['limit_violation']:7.3f} {f(r, 'floor_frames', 10, '.3f')} "
+                     f"{f(r, 'skate_median', 10, '.3f')} {f(r, 'selfpen_1cm_frames', 11, '.3f')} {f(r, 'speed_frames', 8, '.3f')}")  # fmt: skip
     fps = summary.get("frames_per_second")
     lines.append(f"{summary['jobs']} pairs in this shard: {summary['done_before']} done before, {summary['done_now']} now "
                  f"({summary['frames']} frames in {summary['seconds']} s" + (f", {fps} frames/s)" if fps else ")"))  # fmt: skip

@@ -24,11 +24,13 @@ import torch
 from mer_data.base.errors import MerError
 from mer_data.kinematics.jointmap import joint_map
 from mer_data.motion.samples import TrainingSample, collate
+from mer_data.robots.collision import collision_model
 from mer_data.robots.registry import Robot, as_robot
 from mer_models.config import EnergyConfig, SamplerConfig
 from mer_models.solver.optimize import DEFAULT_GN_ITERS, DEFAULT_ITERS
 from mer_models.zoo.checkpoint import Checkpoint, check_robot
 
+from .artifacts import ARTIFACT_KEYS, motion_artifacts
 from .inference import optimize_batch, sample_batch
 from .metrics import summarize, window_metrics
 
@@ -57,6 +59,7 @@ class EvalOptions:
         scaling: how the reference is scaled to the target (:mod:`mer_data.kinematics.scaling`).
         refine: Levenberg-Marquardt iterations of the ``refine`` method.
         bf16: the model's network under bfloat16 autocast (:mod:`mer_models.diffusion.precision`).
+        artifacts: also the artifact metrics of every window (:mod:`mer_models.retarget.artifacts`).
     """
 
     split: str = "paper"
@@ -74,6 +77,7 @@ class EvalOptions:
     scaling: str = "segments"
     refine: int = 5
     bf16: bool = False
+    artifacts: bool = True
 
 
 def _clip_files(folder: Path) -> dict[str, Path]:
@@ -163,6 +167,20 @@ def _target_windows(input_dir: Path, target: Robot, windows: list[dict], opts: E
     return out
 
 
+WINDOW_FPS = 30.0  # the windows' frame rate (LAFAN1's, the model's)
+
+
+def _window_artifacts(motion: dict, batch: dict, tgt, ref, geometry, windows: list[dict]) -> dict[str, np.ndarray]:
+    """The artifact metrics (:mod:`.artifacts`) of every window of a batch: key → (B,)."""
+    out: dict[str, list[float]] = {k: [] for k in ARTIFACT_KEYS}
+    q, bp, br = (motion[k].detach().double().cpu().numpy() for k in ("q", "base_pos", "base_rot"))
+    for b, x in enumerate(windows):
+        a = motion_artifacts(q[b], bp[b], br[b], WINDOW_FPS, tgt, geometry, x["reference"], ref)
+        for k in ARTIFACT_KEYS:
+            out[k].append(a[k])
+    return {k: np.asarray(v, np.float64) for k, v in out.items()}
+
+
 def evaluate(
     input_dir: str | Path,
     source: str,
@@ -197,6 +215,7 @@ def evaluate(
     rows = []
     for target in targets:
         tgt = tgt_robots[target].skeleton
+        geometry = collision_model(tgt_robots[target]) if opts.artifacts else None
         eta = joint_map(tgt, ref)
         for dom in DOMAINS:
             w = windows[dom]
@@ -205,8 +224,9 @@ def evaluate(
             gts = _target_windows(input_dir, tgt_robots[target], w, opts)
             for method in methods:
                 vals: dict[str, list[np.ndarray]] = {}
-                t0 = time.time()
+                sec = 0.0  # the retargeting's time (not the metrics')
                 for a in range(0, len(w), opts.batch_size):
+                    t0 = time.time()
                     samples = [
                         TrainingSample(x["reference"], ref, tgt, eta, gt, {"clip": x["clip"], "start": x["start"]})
                         for x, gt in zip(w[a : a + opts.batch_size], gts[a : a + opts.batch_size])
@@ -223,10 +243,13 @@ def evaluate(
                             motion = optimize_batch(opt_energy, batch, gn_iters=opts.refine, init=motion)
                     else:
                         motion = optimize_batch(opt_energy, batch, iters=opts.opt_iters, gn_iters=opts.opt_gn_iters)
+                    sec += time.time() - t0
                     for k, v in window_metrics(motion, batch, keypoints={"base": 0, **tgt.keypoints}, joints=_joints(tgt)).items():
                         vals.setdefault(k, []).append(v)
+                    if geometry is not None:
+                        for k, v in _window_artifacts(motion, batch, tgt, ref, geometry, w[a : a + opts.batch_size]).items():
+                            vals.setdefault(k, []).append(v)
                 summary = summarize({k: np.concatenate(v) for k, v in vals.items()})
-                sec = time.time() - t0
                 row = {"robot": target, "domain": dom, "method": method, "windows": len(w), "seconds": round(sec, 2),
                        "frames_per_s": round(len(w) * opts.window / max(sec, 1e-9), 1), "metrics": summary}  # fmt: skip
                 rows.append(row)
@@ -242,6 +265,8 @@ def evaluate(
 
 
 _COLS = (("g_mpbpe", "E_g-mpbpe [m]"), ("mpboe", "E_mpboe [rad]"), ("mpbve", "E_mpbve [m/s]"), ("jerk_frame", "E_smooth [rad/fr^3]"), ("ref_jerk_frame", "source jerk"), ("limit_violation", "limits"))
+_ART_COLS = (("floor_frames", "feet < -1 cm"), ("floor_depth_max", "deepest [m]"), ("skate_median", "skate med [m/s]"),
+             ("floating_frames", "floating"), ("selfpen_1cm_frames", "self-pen > 1 cm"), ("speed_frames", "over speed limit"))  # fmt: skip
 _GT_COLS = (("gt_mpbpe", "vs data: pos [m]"), ("gt_mpboe", "orient [rad]"), ("gt_mpbve", "vel [m/s]"))
 
 
@@ -271,5 +296,14 @@ def format_table(report: dict) -> str:
             if has_gt:
                 s += "  " + "  ".join(f"{_cell(r['metrics'], k):>16s}" for k, _ in _GT_COLS)
             lines.append(s)
+        if any(r["metrics"].get("floor_frames") for r in rows):
+            lines += ["", f"{dom}: artifacts (share of frames; mean over windows; docs/model.md §Evaluation)",
+                      f"{'robot':10s} {'method':9s}  " + "  ".join(f"{t:>16s}" for _, t in _ART_COLS)]  # fmt: skip
+            for r in rows:
+                cells = []
+                for k, _ in _ART_COLS:
+                    v = r["metrics"].get(k, {}).get("mean", float("nan"))
+                    cells.append(f"{v:16.3f}" if np.isfinite(v) else f"{'-':>16s}")
+                lines.append(f"{r['robot']:10s} {r['method']:9s}  " + "  ".join(cells))
     return "\n".join(lines)
 

@@ -34,6 +34,8 @@ floating-point rounding of differently padded systems).
 
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 
 from mer_data.kinematics.rotations import axis_angle_to_matrix
@@ -222,6 +224,7 @@ def gauss_newton_ik(
     smooth: float = DEFAULT_SMOOTH,
     tol: float = DEFAULT_TOL,
     stats: dict | None = None,
+    physics: Any = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Refine (q (B, T, J), base_pos (B, T, 3), base_rot (B, T, 3, 3)) towards the goals.
 
@@ -232,12 +235,14 @@ def gauss_newton_ik(
         iters: at most this many iterations; smooth: weight of the temporal prior (0: frames
             independent); tol: early stop (relative cost change of every frame).
         stats: receives ``iterations`` (the most any sample ran) and ``cost`` (B, T).
+        physics: :class:`~mer_models.solver.physics.PhysicsInputs`: the physical terms too.
 
     Returns the refined triple; angles stay inside [lower, upper].
     """
     B, T, J = q.shape
     P = _Problem(cfg, graph, eta, goal, q, goal_rot, rot_mask)
     D, n = P.D, P.n
+    phys = physics.build(P, cfg.w_kp) if physics is not None else None
     sm = P.dof_weight(smooth * cfg.w_kp) if T > 1 else P.zeros(B, 1, D)
     reg, nominal = P.reg, P.nominal
     qd = P.columns(q)
@@ -253,6 +258,11 @@ def gauss_newton_ik(
         qbar = _neighbour_mean(qd)
         cost = cost_fit + prior(qd, qbar)
         h, g = P.linearise(pos, rot, kp, ocols)
+        if phys is not None:
+            state = phys.freeze(pos, rot, qd)
+            cost = cost + phys.cost(pos, rot, qd, state)
+            ph, pg = phys.linearise(pos, rot, qd, state)
+            h, g = h + ph, g + pg
         prior_h = torch.cat([reg + sm, P.zeros(B, 1, 6)], -1)
         g = g + torch.cat([reg * (qd - nominal) + sm * (qd - qbar), P.zeros(B, T, 6)], -1)
         h = h + torch.diag_embed(prior_h.expand(B, T, n))
@@ -262,6 +272,8 @@ def gauss_newton_ik(
         qd_c, bp_c, br_c = P.candidate(qd, base_pos, base_rot, step)
         pos_c, rot_c, kp_c, ocols_c, fit_c = P.fit(qd_c, bp_c, br_c)
         cost_c = fit_c + prior(qd_c, qbar)
+        if phys is not None:
+            cost_c = cost_c + phys.cost(pos_c, rot_c, qd_c, state)
         ok = (cost_c < cost) & active[:, None]
         o1, o2, o3 = ok[..., None], ok[..., None, None], ok[..., None, None, None]
         qd, base_pos, base_rot = torch.where(o1, qd_c, qd), torch.where(o1, bp_c, base_pos), torch.where(o2, br_c, base_rot)
@@ -377,6 +389,7 @@ def coupled_lm_ik(
     smooth: float = DEFAULT_SMOOTH,
     tol: float = DEFAULT_TOL,
     stats: dict | None = None,
+    physics: Any = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Levenberg-Marquardt on a whole window at once: the temporal prior couples the frames exactly.
 
@@ -395,6 +408,7 @@ def coupled_lm_ik(
     B, T, J = q.shape
     P = _Problem(cfg, graph, eta, goal, q, goal_rot, rot_mask)
     D = P.D
+    phys = physics.build(P, cfg.w_kp) if physics is not None else None
     w = P.dof_weight(smooth * cfg.w_kp)[:, 0] / 4 if T > 1 else P.zeros(B, D)  # (B, D) per difference
     reg, nominal = P.reg, P.nominal
     qd = P.columns(q)
@@ -422,6 +436,11 @@ def coupled_lm_ik(
         h, g = P.linearise(pos, rot, kp, ocols)
         h = h + torch.diag_embed(prior_h)
         g = g + prior_grad(qd)
+        if phys is not None:  # the physical terms, their coupled parts held at this iterate
+            state = phys.freeze(pos, rot, qd)
+            cost = frame_cost(fit, qd) + phys.cost(pos, rot, qd, state)
+            ph, pg = phys.linearise(pos, rot, qd, state)
+            h, g = h + ph, g + pg
         # active set: a joint at a limit that the gradient pushes further out stays where it is
         gq = g[..., :D]
         fixed = ((qd <= P.lower) & (gq > 0)) | ((qd >= P.upper) & (gq < 0))  # (B, T, D)
@@ -433,12 +452,15 @@ def coupled_lm_ik(
         qd_c, bp_c, br_c = P.candidate(qd, base_pos, base_rot, step)
         pos_c, rot_c, kp_c, ocols_c, fit_c = P.fit(qd_c, bp_c, br_c)
         cost_c = frame_cost(fit_c, qd_c)
+        if phys is not None:
+            cost_c = cost_c + phys.cost(pos_c, rot_c, qd_c, state)
         total, total_c = cost.sum(-1), cost_c.sum(-1)
         ok = (total_c < total) & active & solved
         o1, o2, o3 = ok[:, None, None], ok[:, None, None, None], ok[:, None, None, None, None]
         qd, base_pos, base_rot = torch.where(o1, qd_c, qd), torch.where(o1, bp_c, base_pos), torch.where(o2, br_c, base_rot)
         pos, kp, rot = torch.where(o2, pos_c, pos), torch.where(o2, kp_c, kp), torch.where(o3, rot_c, rot)
         cost = torch.where(ok[:, None], cost_c, cost)
+        fit = torch.where(ok[:, None], fit_c, fit)
         if P.M:
             ocols = torch.where(o2, ocols_c, ocols)
         mu = torch.where(active, torch.where(ok, mu / 3, mu * 4).clamp(1e-7, 1e6), mu)

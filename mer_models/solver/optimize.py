@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import logging
 import math
+from typing import Any
 
 import torch
 
@@ -111,6 +112,7 @@ def optimize_motion(
     fps: float = 30.0,
     init: dict[str, torch.Tensor] | None = None,
     stats: dict | None = None,
+    physics: Any = None,
 ) -> dict[str, torch.Tensor]:
     """Minimise the energy for a batch.
 
@@ -133,6 +135,8 @@ def optimize_motion(
             stage 1 is ``gn_iters`` iterations of :func:`~mer_models.solver.ik.coupled_lm_ik` (with
             ``smooth > 0``; else frame by frame).
         stats: receives ``gn_iterations``.
+        physics: :class:`~mer_models.solver.physics.PhysicsInputs`: the physical terms in stage 1
+            (floor, stance and swing feet, self-penetration, joint speed; :mod:`.physics`).
 
     Returns:
         ``q`` (B, T, Jt) [rad] inside the limits, ``base_pos`` (B, T, 3), ``base_rot`` (B, T, 3, 3),
@@ -160,18 +164,19 @@ def optimize_motion(
                 # coarse to fine: key frames first (the prior spans `stride` frames there: weight / stride^2)
                 idx = torch.unique(torch.cat([torch.arange(0, T, stride), torch.tensor([T - 1])])).to(goal.device)
                 sub = {"goal_rot": None if goal_rot is None else goal_rot[:, idx], "rot_mask": rot_mask}
+                coarse = physics.frames(idx, stride) if physics is not None else None
                 qk, pk, rk = gauss_newton_ik(cfg, graph, eta, goal[:, idx], q0[:, idx], p0[:, idx], r0[:, idx], iters=gn_iters,
-                                             smooth=smooth / stride**2, tol=tol, **sub)  # fmt: skip
+                                             smooth=smooth / stride**2, tol=tol, physics=coarse, **sub)  # fmt: skip
                 warm = _interpolate({"q": qk, "base_pos": pk, "base_rot": rk}, idx, T)
                 q0, p0, r0 = warm["q"], warm["base_pos"], warm["base_rot"]
                 ik_iters = min(gn_iters, FINE_ITERS[fine] if refine_iters is None else refine_iters)
                 whole = fine == "coupled" and smooth > 0
             if whole:
                 q0, p0, r0 = coupled_lm_ik(cfg, graph, eta, goal, q0, p0, r0, iters=ik_iters, smooth=smooth, tol=tol,
-                                           stats=ik_stats, **gkw)  # fmt: skip
+                                           stats=ik_stats, physics=physics, **gkw)  # fmt: skip
             else:
                 q0, p0, r0 = gauss_newton_ik(cfg, graph, eta, goal, q0, p0, r0, iters=ik_iters, smooth=smooth, tol=tol,
-                                             stats=ik_stats, **gkw)  # fmt: skip
+                                             stats=ik_stats, physics=physics, **gkw)  # fmt: skip
             if stats is not None:
                 stats["gn_iterations"] = ik_stats.get("iterations", 0)
     if iters > 0:

@@ -1,0 +1,158 @@
+"""Where a robot's collision polytopes are, and how deep they reach: into the floor and into each other.
+
+Works on a :class:`~mer_data.robots.collision.CollisionModel` (shapes attached to skeleton nodes,
+in node frames) and node poses from FK: positions ``pos`` (..., J, 3) [m] and rotations ``rot``
+(..., J, 3, 3), node frames as :func:`~mer_data.kinematics.fk.fk_skeleton` returns them. Torch,
+batched over leading dimensions, differentiable.
+
+**Penetration depth** of shape A into shape B: the deepest of A's surface sample points inside B,
+measured to B's nearest face (``-max_f (n_f . p + d_f)``); a pair's depth is the larger of A-in-B
+and B-in-A. Positive: interpenetrating by that much [m]; negative: apart, by at least that much
+(pairs far apart are not computed exactly: the gap between their bounding spheres, else between
+their world-axis-aligned boxes, else the polyhedral distance of the nearest sample point).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+
+__all__ = ["shape_points", "lowest_points", "pair_depths", "pair_contacts"]
+
+
+def _t(a: Any, like: torch.Tensor) -> torch.Tensor:
+    return torch.as_tensor(a, dtype=like.dtype, device=like.device)
+
+
+def shape_points(model: Any, pos: torch.Tensor, rot: torch.Tensor, which: str = "vertices") -> torch.Tensor:
+    """World coordinates of every shape's ``vertices`` or surface ``points``: (..., S, P, 3) [m]."""
+    local = _t(getattr(model, which), pos)  # (S, P, 3)
+    node = torch.as_tensor(model.node, device=pos.device)
+    r = rot[..., node, :, :]  # (..., S, 3, 3)
+    return torch.einsum("...sij,spj->...spi", r, local) + pos[..., node, None, :]
+
+
+def lowest_points(model: Any, pos: torch.Tensor, rot: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Height of each shape's lowest vertex (..., S) [m] and which vertex it is (..., S)."""
+    z = shape_points(model, pos, rot, "vertices")[..., 2]
+    return z.min(-1)
+
+
+def pair_depths(model: Any, pos: torch.Tensor, rot: torch.Tensor, pairs: Any = None, *, margin: float = 0.0,
+                chunk: int = 2048) -> torch.Tensor:  # fmt: skip
+    """Penetration depth of each checked pair (see the module docstring): (..., K) [m].
+
+    Args:
+        pairs: (K, 2) shape indices (default ``model.pairs``).
+        margin: pairs whose bounding spheres are more than ``margin`` apart are not computed exactly.
+        chunk: (frame, pair) entries computed at once (memory ~ chunk * points * planes).
+    """
+    pairs = torch.as_tensor(model.pairs if pairs is None else pairs, device=pos.device).reshape(-1, 2)
+    lead = pos.shape[:-2]
+    K = pairs.shape[0]
+    if K == 0:
+        return pos.new_zeros((*lead, 0))
+    node = torch.as_tensor(model.node, device=pos.device)
+    center = _t(model.center, pos)
+    radius = _t(model.radius, pos)
+    p2 = pos.reshape(-1, *pos.shape[-2:])
+    r2 = rot.reshape(-1, *rot.shape[-3:])
+    a, b = pairs[:, 0], pairs[:, 1]
+    ca = torch.einsum("fkij,kj->fki", r2[:, node[a]], center[a]) + p2[:, node[a]]
+    cb = torch.einsum("fkij,kj->fki", r2[:, node[b]], center[b]) + p2[:, node[b]]
+    gap = (ca - cb).norm(dim=-1) - radius[a] - radius[b]  # (B, K): bounding spheres
+    out = -gap.clamp_min(0)
+    near = gap <= margin
+    if bool(near.any()):  # then world-axis-aligned boxes of the vertices: tighter for long bodies
+        with torch.no_grad():
+            v = shape_points(model, p2, r2, "vertices")  # (B, S, V, 3)
+            lo, hi = v.amin(-2), v.amax(-2)
+            sep = torch.maximum(lo[:, a] - hi[:, b], lo[:, b] - hi[:, a]).amax(-1)  # (B, K) gap between the boxes
+        out = torch.where(near & (sep > 0), -sep, out)
+        near &= ~(sep > margin)
+    near = near.nonzero()
+    if len(near):
+        pts = _t(model.points, pos)
+        planes = _t(model.planes, pos)
+        vals = []
+        for s in range(0, len(near), chunk):
+            f, k = near[s : s + chunk, 0], near[s : s + chunk, 1]
+            sa, sb = a[k], b[k]
+            vals.append(torch.maximum(_inside(pts, planes, node, p2, r2, f, sa, sb), _inside(pts, planes, node, p2, r2, f, sb, sa)))
+        out = out.index_put((near[:, 0], near[:, 1]), torch.cat(vals))
+    return out.reshape(*lead, K)
+
+
+def _inside(pts, planes, node, pos, rot, f, sa, sb) -> torch.Tensor:
+    """Depth of shape ``sa``'s points inside shape ``sb`` at frames ``f`` (entries E): (E,)."""
+    ra, ta = rot[f, node[sa]], pos[f, node[sa]]
+    rb, tb = rot[f, node[sb]], pos[f, node[sb]]
+    world = torch.einsum("eij,epj->epi", ra, pts[sa]) + ta[:, None]
+    local = torch.einsum("eji,epj->epi", rb, world - tb[:, None])  # into sb's node frame
+    pl = planes[sb]  # (E, F, 4)
+    signed = torch.einsum("epj,efj->epf", local, pl[..., :3]) + pl[:, None, :, 3]
+    return (-signed.amax(-1)).amax(-1)
+
+
+def pair_contacts(model: Any, pos: torch.Tensor, rot: torch.Tensor, *, margin: float = 0.0, top: int = 8):
+    """The deepest point of the ``top`` deepest checked pairs of every frame (what pushes bodies apart).
+
+    Args:
+        pos, rot: (B, T, J, 3), (B, T, J, 3, 3) node poses.
+
+    Returns:
+        None if no pair is within ``margin``; else depth (B, T, K) [m] (``-inf`` on padding),
+        point (B, T, K, 3) the deepest point (world) of the body that reaches in, normal (B, T, K, 3)
+        the outward normal (world) of the face of the other body it is nearest to, and the nodes
+        (B, T, K) of the reaching body and of the other one. ``depth`` falls as the point moves
+        along ``normal`` relative to the other body: ``d depth = -normal . (dp_point - dp_other)``.
+    """
+    B, T = pos.shape[:2]
+    d = pair_depths(model, pos, rot, margin=margin)  # (B, T, K)
+    K = min(top, d.shape[-1])
+    if K == 0:
+        return None
+    depth, k = d.topk(K, dim=-1)
+    sel = depth > -margin
+    if not bool(sel.any()):
+        return None
+    pairs = torch.as_tensor(model.pairs, device=pos.device)
+    node = torch.as_tensor(model.node, device=pos.device)
+    pts, planes = _t(model.points, pos), _t(model.planes, pos)
+    bi, ti, ki = sel.nonzero(as_tuple=True)
+    pk = k[bi, ti, ki]
+    sa, sb = pairs[pk, 0], pairs[pk, 1]
+    p2, r2 = pos.reshape(B * T, *pos.shape[2:]), rot.reshape(B * T, *rot.shape[2:])
+    f = bi * T + ti
+    da, pa, na = _deepest(pts, planes, node, p2, r2, f, sa, sb)
+    db, pb, nb = _deepest(pts, planes, node, p2, r2, f, sb, sa)
+    a_in = (da >= db)[:, None]
+    point = torch.where(a_in, pa, pb)
+    normal = torch.where(a_in, na, nb)
+    reach = torch.where(a_in[:, 0], node[sa], node[sb])
+    other = torch.where(a_in[:, 0], node[sb], node[sa])
+    out_d = torch.full((B, T, K), float("-inf"), dtype=pos.dtype, device=pos.device)
+    out_p = pos.new_zeros(B, T, K, 3)
+    out_n = pos.new_zeros(B, T, K, 3)
+    out_a = torch.zeros(B, T, K, dtype=torch.long, device=pos.device)
+    out_b = torch.zeros(B, T, K, dtype=torch.long, device=pos.device)
+    out_d[bi, ti, ki] = torch.maximum(da, db)
+    out_p[bi, ti, ki], out_n[bi, ti, ki], out_a[bi, ti, ki], out_b[bi, ti, ki] = point, normal, reach, other
+    return out_d, out_p, out_n, out_a, out_b
+
+
+def _deepest(pts, planes, node, pos, rot, f, sa, sb):
+    """Shape ``sa``'s deepest point inside ``sb`` at frames ``f``: depth (E,), the point (E, 3) and the
+    outward normal (E, 3) of ``sb``'s nearest face, in the world."""
+    ra, ta = rot[f, node[sa]], pos[f, node[sa]]
+    rb, tb = rot[f, node[sb]], pos[f, node[sb]]
+    world = torch.einsum("eij,epj->epi", ra, pts[sa]) + ta[:, None]
+    local = torch.einsum("eji,epj->epi", rb, world - tb[:, None])
+    pl = planes[sb]
+    signed = torch.einsum("epj,efj->epf", local, pl[..., :3]) + pl[:, None, :, 3]  # (E, P, F)
+    near, face = signed.max(-1)  # per point: its nearest face (the largest signed distance)
+    depth, p = (-near).max(-1)
+    e = torch.arange(len(f), device=pos.device)
+    n_local = pl[e, face[e, p], :3]
+    return depth, world[e, p], torch.einsum("eij,ej->ei", rb, n_local)

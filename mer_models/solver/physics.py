@@ -1,0 +1,252 @@
+"""Physical terms of the optimiser: what keeps a retargeted motion trainable for a tracking policy.
+
+Residual rows added to the Levenberg-Marquardt steps of :mod:`mer_models.solver.ik`, per frame, on
+the target's collision polytopes (:mod:`mer_data.robots.collision`), floor at z = 0:
+
+* **floor** ``w_floor``: every shape's lowest vertex at or above the floor (one-sided);
+* **stance** (the source's foot down, :func:`mer_data.motion.contacts.foot_contacts`): the foot's
+  lowest point on the floor (``w_stance``), the foot flat (its node frame's z axis vertical,
+  ``w_flat``: every robot's zero pose stands on flat feet) and put (its node's x, y at the mean of
+  that stance phase, ``w_anchor``);
+* **swing** (the source's foot up): the foot's lowest point at least ``swing_clearance`` up
+  (one-sided, ``w_swing``);
+* **self-penetration** ``w_self``: the deepest point of each interpenetrating pair of checked
+  bodies (:func:`mer_data.kinematics.collision.pair_contacts`) pushed out to ``self_margin``;
+* **joint speed** ``w_speed``: ``|q_t - q_{t+-1}|`` at most ``speed_fraction`` of the URDF velocity
+  limit over a frame (one-sided).
+
+Terms that couple frames (anchors, joint speed) take the neighbours from the previous iterate,
+Jacobi-style, in both solvers. Weights are relative to ``EnergyConfig.w_kp`` (docs/decisions.md).
+Jacobians are analytic, the same form as the key points': a point ``p`` moving with node ``k``
+moves by ``a_j x (p - p_j)`` for every joint ``j`` at or above ``k``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+
+from mer_data.kinematics.collision import pair_contacts, shape_points
+
+__all__ = ["PhysicsConfig", "PhysicsInputs", "Physics"]
+
+
+@dataclass(frozen=True)
+class PhysicsConfig:
+    """Weights (relative to ``w_kp``) and thresholds [m], [1] of the physical terms."""
+
+    w_floor: float = 20.0
+    w_stance: float = 5.0
+    w_flat: float = 0.05
+    w_anchor: float = 2.0
+    w_swing: float = 1.0
+    swing_clearance: float = 0.01
+    w_self: float = 10.0
+    self_margin: float = 0.005
+    max_contacts: int = 8  # self-penetration rows per frame
+    w_speed: float = 1.0
+    speed_fraction: float = 0.9
+
+
+@dataclass(frozen=True)
+class PhysicsInputs:
+    """What a solver needs for the physical terms of a batch (every sample the same robot).
+
+    Attributes:
+        model: the robot's :class:`~mer_data.robots.collision.CollisionModel`.
+        contacts: (B, T, 2) bool, the source's feet down; None: no stance / swing terms.
+        fps: the frames' rate [Hz]; cfg: the weights.
+    """
+
+    model: Any
+    contacts: torch.Tensor | None
+    fps: float
+    cfg: PhysicsConfig = PhysicsConfig()
+
+    def frames(self, idx: torch.Tensor, stride: int) -> "PhysicsInputs":
+        """The same for every ``stride``-th frame ``idx`` (a coarse solve)."""
+        c = None if self.contacts is None else self.contacts[:, idx]
+        return PhysicsInputs(self.model, c, self.fps / stride, self.cfg)
+
+    def build(self, problem: Any, w_kp: float) -> "Physics":
+        """The terms for a solver's problem (:class:`mer_models.solver.ik._Problem`)."""
+        from .ik import ancestors
+
+        g = problem.graph
+        contacts = None if self.contacts is None else self.contacts.to(problem.dev)
+        return Physics(self.cfg, w_kp, self.model, contacts, problem.fold, problem.cols, problem.col_mask,
+                       ancestors(g.parents), g.axes.to(problem.dtype), self.fps)  # fmt: skip
+
+
+def _anchor(xy: torch.Tensor, down: torch.Tensor) -> torch.Tensor:
+    """Mean x, y of each stance phase, per frame: xy (B, T, 2), down (B, T) → (B, T, 2)."""
+    B, T = down.shape
+    start = down & torch.cat([torch.ones_like(down[:, :1]), ~down[:, :-1]], 1)
+    seg = torch.cumsum(start.long(), 1) * down.long()  # 0 outside stance, 1.. per phase
+    n = int(seg.max()) + 1 if seg.numel() else 1
+    sums = torch.zeros(B, n, 2, dtype=xy.dtype, device=xy.device).scatter_add_(1, seg[..., None].expand(B, T, 2), xy * down[..., None])
+    counts = torch.zeros(B, n, dtype=xy.dtype, device=xy.device).scatter_add_(1, seg, down.to(xy.dtype))
+    mean = sums / counts.clamp_min(1)[..., None]
+    return torch.gather(mean, 1, seg[..., None].expand(B, T, 2))
+
+
+class Physics:
+    """The physical terms of one batch (every sample the same robot).
+
+    Args:
+        cfg: weights; w_kp: the key-point weight they are relative to.
+        model: the robot's :class:`~mer_data.robots.collision.CollisionModel`.
+        contacts: (B, T, 2) bool, the source's feet down (None: no stance / swing terms).
+        fold: (B, J, D) node → actuated column (mimic joints folded); cols: (B, D) the columns' nodes.
+        anc: (B, J, J) ``[b, k, j]`` True iff j is a strict ancestor of k; axes (B, J, 3) node axes.
+        fps: frame rate [Hz] (joint speed).
+    """
+
+    def __init__(self, cfg: PhysicsConfig, w_kp: float, model: Any, contacts: torch.Tensor | None, fold: torch.Tensor,
+                 cols: torch.Tensor, col_mask: torch.Tensor, anc: torch.Tensor, axes: torch.Tensor, fps: float) -> None:  # fmt: skip
+        self.cfg, self.model, self.fps = cfg, model, fps
+        dtype, dev = fold.dtype, fold.device
+        J = anc.shape[-1]
+        self.moves = (anc | torch.eye(J, dtype=torch.bool, device=dev)).to(dtype)  # [b, k, j]: j moves a point on k
+        self.fold, self.axes = fold, axes
+        self.sw = {k: (getattr(cfg, k) * w_kp) ** 0.5 for k in ("w_floor", "w_stance", "w_flat", "w_anchor", "w_swing", "w_self", "w_speed")}
+        self.contacts = contacts
+        self.node = torch.as_tensor(model.node, device=dev)
+        foot = torch.as_tensor(model.foot, device=dev)
+        self.feet = [torch.nonzero(foot == s).flatten() for s in (1, 2)]
+        foot_nodes = []
+        for f in self.feet:  # the node carrying most of the foot (its rotation says if the foot is flat)
+            nodes = self.node[f] if len(f) else torch.zeros(1, dtype=torch.long, device=dev)
+            foot_nodes.append(int(torch.mode(nodes).values) if len(f) else -1)
+        self.foot_node = foot_nodes
+        lim = torch.as_tensor(model.velocity_limit, dtype=dtype, device=dev)
+        step = torch.gather(lim[None].expand(cols.shape[0], -1), 1, cols) / fps * cfg.speed_fraction  # (B, D)
+        self.max_step = torch.where(col_mask & torch.isfinite(step), step, torch.full_like(step, float("inf")))[:, None]  # (B,1,D)
+
+    # ---- state fixed for one iteration (Jacobi) ---------------------------------------------------------
+    def freeze(self, pos: torch.Tensor, rot: torch.Tensor, qd: torch.Tensor) -> dict:
+        """What the coupled terms hold fixed in an iteration: stance anchors and the neighbours' angles."""
+        state: dict = {"q_prev": torch.cat([qd[:, :1], qd[:, :-1]], 1), "q_next": torch.cat([qd[:, 1:], qd[:, -1:]], 1)}
+        if self.contacts is not None:
+            state["anchor"] = [_anchor(pos[:, :, n, :2], self.contacts[..., i]) if n >= 0 else None
+                               for i, n in enumerate(self.foot_node)]  # fmt: skip
+        return state
+
+    # ---- rows ----------------------------------------------------------------------------------------------
+    def _rows(self, pos: torch.Tensor, rot: torch.Tensor, state: dict, with_jacobian: bool):
+        """Point rows (node, point, direction, weighted residual) and column rows (flat feet)."""
+        B, T = pos.shape[:2]
+        dev, dtype = pos.device, pos.dtype
+        c = self.cfg
+        verts = shape_points(self.model, pos, rot, "vertices")  # (B, T, S, V, 3)
+        low_z, low_v = verts[..., 2].min(-1)  # (B, T, S)
+        S = low_z.shape[-1]
+        low_p = torch.gather(verts, 3, low_v[..., None, None].expand(B, T, S, 1, 3))[..., 0, :]  # (B, T, S, 3)
+        nodes, points, dirs, res, jws = [], [], [], [], []
+        ez = torch.tensor([0.0, 0.0, 1.0], dtype=dtype, device=dev)
+        # floor: every shape's lowest vertex
+        nodes.append(self.node.expand(B, T, S))
+        points.append(low_p)
+        dirs.append(ez.expand(B, T, S, 3))
+        res.append(self.sw["w_floor"] * low_z.clamp_max(0))
+        jws.append(self.sw["w_floor"] * (low_z < 0).to(dtype))
+        col_nodes, col_dirs, col_res, col_w = [], [], [], []
+        if self.contacts is not None:
+            for i, f in enumerate(self.feet):
+                if not len(f):
+                    continue
+                down = self.contacts[..., i].to(dtype)  # (B, T)
+                z, k = low_z[..., f].min(-1)
+                s = f[k]
+                nodes.append(self.node[s][..., None])
+                points.append(torch.gather(low_p, 2, s[..., None, None].expand(B, T, 1, 3)))
+                dirs.append(ez.expand(B, T, 1, 3))
+                low = (z < c.swing_clearance).to(dtype) * (1 - down)
+                r = self.sw["w_stance"] * z * down + self.sw["w_swing"] * (z - c.swing_clearance) * low
+                res.append(r[..., None])
+                jws.append((self.sw["w_stance"] * down + self.sw["w_swing"] * low)[..., None])
+                n = self.foot_node[i]
+                for axis in range(2):  # stay put: the foot node's x, y at its stance phase's mean
+                    e = torch.zeros(3, dtype=dtype, device=dev)
+                    e[axis] = 1
+                    nodes.append(torch.full((B, T, 1), n, device=dev))
+                    points.append(pos[:, :, n : n + 1])
+                    dirs.append(e.expand(B, T, 1, 3))
+                    res.append((self.sw["w_anchor"] * (pos[:, :, n, axis] - state["anchor"][i][..., axis]) * down)[..., None])
+                    jws.append((self.sw["w_anchor"] * down)[..., None])
+                    col_nodes.append(n)
+                    col_dirs.append(e)
+                    col_res.append(self.sw["w_flat"] * rot[:, :, n, axis, 2] * down)  # the foot's z axis, tilted
+                    col_w.append(self.sw["w_flat"] * down)
+        # self-penetration: the deepest points
+        ca = pair_contacts(self.model, pos, rot, margin=c.self_margin, top=c.max_contacts)
+        if ca is not None:
+            depth, pt, normal, na, nb = ca  # (B, T, K) ...
+            active = (depth > -c.self_margin).to(dtype)
+            nodes.append(torch.stack([na, nb], -1))  # rows with two bodies: handled via the 'other' node
+            points.append(pt)
+            dirs.append(-normal)
+            res.append(self.sw["w_self"] * (depth + c.self_margin) * active)
+            jws.append(self.sw["w_self"] * active)
+        return nodes, points, dirs, res, jws, (col_nodes, col_dirs, col_res, col_w)
+
+    def cost(self, pos: torch.Tensor, rot: torch.Tensor, qd: torch.Tensor, state: dict) -> torch.Tensor:
+        """(B, T) the terms' cost at a pose (the neighbours and anchors of ``state``)."""
+        _, _, _, res, _, (_, _, col_res, _) = self._rows(pos, rot, state, False)
+        out = sum((r**2).sum(-1) for r in res)
+        for r in col_res:
+            out = out + r**2
+        return out + (self._speed(qd, state)[0] ** 2).sum(-1)
+
+    def _speed(self, qd: torch.Tensor, state: dict) -> tuple[torch.Tensor, torch.Tensor]:
+        """Residuals (B, T, D) of the joint-speed term and their derivative in q_t (+-1 or 0)."""
+        w = self.sw["w_speed"]
+        over_p = (qd - state["q_prev"]).abs() - self.max_step
+        over_n = (qd - state["q_next"]).abs() - self.max_step
+        r = w * (over_p.clamp_min(0) + over_n.clamp_min(0))
+        d = w * (torch.sign(qd - state["q_prev"]) * (over_p > 0) + torch.sign(qd - state["q_next"]) * (over_n > 0))
+        return r, d
+
+    def linearise(self, pos: torch.Tensor, rot: torch.Tensor, qd: torch.Tensor, state: dict) -> tuple[torch.Tensor, torch.Tensor]:
+        """The terms' Gauss-Newton normal equations: ``J^T J`` (B, T, n, n) and ``J^T r`` (B, T, n)."""
+        B, T, J = pos.shape[:3]
+        nodes, points, dirs, res, jws, (col_nodes, col_dirs, col_res, col_w) = self._rows(pos, rot, state, True)
+        axes_w = (rot @ self.axes[:, None, :, :, None]).squeeze(-1)  # (B, T, J, 3)
+        D = self.fold.shape[-1]
+        rows = []
+        resid = []
+        for n, p, u, r, w in zip(nodes, points, dirs, res, jws):
+            two = n.dim() == 4  # (B, T, K, 2): a pair of bodies (point on the first, normal of the second)
+            na = n[..., 0] if two else n
+            lever = p[:, :, :, None, :] - pos[:, :, None, :, :]  # (B, T, R, J, 3)
+            dq = (torch.linalg.cross(axes_w[:, :, None].expand_as(lever), lever) * u[:, :, :, None, :]).sum(-1)  # (B, T, R, J)
+            bidx = torch.arange(B, device=pos.device)[:, None, None]
+            m = self.moves[bidx, na]  # (B, T, R, J)
+            has = torch.ones_like(r)
+            if two:
+                m = m - self.moves[bidx, n[..., 1]]
+                has = torch.zeros_like(r)
+            jq = (dq * m).flatten(1, 2) @ self.fold  # (B, T*R, D)
+            jq = jq.view(B, T, -1, D)
+            jt = u * has[..., None]
+            jr = torch.linalg.cross(p - pos[:, :, :1], u) * has[..., None]
+            rows.append(torch.cat([jq, jt, jr], -1) * w[..., None])  # inactive rows: weight 0, no Jacobian
+            resid.append(r)
+        for n, e, r, w in zip(col_nodes, col_dirs, col_res, col_w):
+            c = rot[:, :, n, :, 2]  # (B, T, 3) the foot's z axis
+            dq = (torch.linalg.cross(axes_w, c[:, :, None].expand_as(axes_w)) * e).sum(-1)  # (B, T, J)
+            jq = (dq * self.moves[:, n][:, None]) @ self.fold  # (B, T, D)
+            jr = torch.linalg.cross(c, e.expand_as(c))
+            jrow = torch.cat([jq, torch.zeros_like(c), jr], -1)[:, :, None] * w[..., None, None]
+            rows.append(jrow)
+            resid.append(r[..., None])
+        jac = torch.cat(rows, 2)  # (B, T, R, n), rows weighted like their residuals
+        rr = torch.cat(resid, 2)
+        h = jac.transpose(-1, -2) @ jac
+        g = (jac.transpose(-1, -2) @ rr[..., None])[..., 0]
+        sr, sd = self._speed(qd, state)
+        h = h + torch.diag_embed(torch.cat([sd**2, torch.zeros(B, T, 6, dtype=h.dtype, device=h.device)], -1))
+        g = g + torch.cat([sr * sd, torch.zeros(B, T, 6, dtype=g.dtype, device=g.device)], -1)
+        return h, g

@@ -1,0 +1,128 @@
+"""The artifact table: what a tracking policy would trip over, mer's retargets next to Unitree's own.
+
+For each clip, frames ``--start``..``--end`` of the G1 source (LAFAN1 robot CSVs), retargeted to
+every target with the optimiser (``mer retarget --method optimize``'s path,
+:func:`mer_models.retarget.clip.retarget_features`, on the excerpt), then measured with
+:mod:`mer_models.retarget.artifacts` on the target's collision geometry, floor z = 0. Where the
+input folder holds the target's own LAFAN1 CSVs (Unitree's retargeting of the same human clip:
+h1, h1_2), the same frames of those are measured the same way, as the peer. Also g-mpbpe and jerk
+of mer's retarget (the paper's metrics) and frames/s of the retargeting alone.
+
+    python tools/bench_artifacts.py --input ../shared/data/lafan1 --json runs/artifacts.json
+
+Prints one row per (target, method) over all clips: frames with a foot below -1 cm, deepest [cm],
+median foot skate in contact [cm/s], self-penetration > 1 cm, frame pairs over the URDF velocity
+limit, joint-limit violations, g-mpbpe [m], jerk, frames/s. Reads LAFAN1 data: never commit its
+output.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from mer_data.kinematics.rotations import quat_to_matrix  # noqa: E402
+from mer_data.motion.lafan1 import read_lafan1_csv  # noqa: E402
+from mer_data.robots.collision import collision_model  # noqa: E402
+from mer_data.robots.registry import load_robot  # noqa: E402
+from mer_models.retarget.artifacts import motion_artifacts  # noqa: E402
+from mer_models.retarget.clip import retarget_features, sequence_metrics, source_features  # noqa: E402
+
+CLIPS = ("walk1_subject1", "run1_subject2", "jumps1_subject1", "dance1_subject1", "fallAndGetUp1_subject1", "fight1_subject2")
+TARGETS = ("h1", "h1_2", "atlas", "talos", "valkyrie", "oli", "tron1", "g1")
+FPS = 30.0
+
+
+def _row(arts: list[dict], extra: dict) -> dict:
+    def mean(k):
+        v = np.array([a[k] for a in arts if a.get(k) is not None], np.float64)
+        v = v[np.isfinite(v)]
+        return float(v.mean()) if len(v) else float("nan")
+
+    return {"floor_frames": mean("floor_frames"), "floor_depth_max": max(a["floor_depth_max"] for a in arts),
+            "skate_median": mean("skate_median"), "selfpen_1cm_frames": mean("selfpen_1cm_frames"),
+            "speed_frames": mean("speed_frames"), "floating_frames": mean("floating_frames"), **extra}  # fmt: skip
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--input", required=True, help="LAFAN1 robot CSV folder (g1/, h1/, ...)")
+    p.add_argument("--source", default="g1")
+    p.add_argument("--targets", nargs="+", default=list(TARGETS))
+    p.add_argument("--clips", nargs="+", default=list(CLIPS))
+    p.add_argument("--start", type=int, default=600, help="first frame (0-based; 600 = line 601)")
+    p.add_argument("--end", type=int, default=1050)
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--json", help="also write every figure here")
+    args = p.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    src = load_robot(args.source)
+    sl = slice(args.start, args.end)
+    feats = {}
+    for clip in args.clips:
+        m = read_lafan1_csv(Path(args.input) / args.source / f"{clip}.csv", src)
+        f = source_features(m.base_pos, m.base_quat, m.node_angles(src.skeleton), src.skeleton, FPS)
+        feats[clip] = f[sl]
+    rows = []
+    for t in args.targets:
+        robot = load_robot(t)
+        geom = collision_model(robot)
+        arts, g, jerk, lim, frames, sec = [], [], [], [], 0, 0.0
+        peer, peer_lim = [], []
+        for clip, f in feats.items():
+            t0 = time.perf_counter()
+            res = retarget_features(f, src.skeleton, robot.skeleton, method="optimize", fps=FPS)
+            sec += time.perf_counter() - t0
+            frames += len(f)
+            met = sequence_metrics(f, src.skeleton, res.motion, prepared=res.prepared, geometry=geom)
+            arts.append(met)
+            g.append(met["g_mpbpe"])
+            jerk.append(met["jerk_frame"])
+            lim.append(met["limit_violation"])
+            own = Path(args.input) / t / f"{clip}.csv"
+            if own.is_file() and t != args.source:
+                u = read_lafan1_csv(own, robot)
+                q = u.node_angles(robot.skeleton)[sl]
+                rot = quat_to_matrix(torch.from_numpy(u.base_quat[sl])).numpy()
+                peer.append(motion_artifacts(q, u.base_pos[sl], rot, FPS, robot.skeleton, geom, f, src.skeleton))
+                lo, hi = robot.skeleton.lower, robot.skeleton.upper
+                rev = np.array([k == "revolute" for k in robot.skeleton.node_kinds])
+                peer_lim.append(float(((q[:, rev] < lo[rev] - 1e-6) | (q[:, rev] > hi[rev] + 1e-6)).any(1).mean()))
+        if peer:
+            rows.append({"target": t, "method": "Unitree", **_row(peer, {"limit_violation": float(np.mean(peer_lim))})})
+        rows.append({"target": t, "method": "mer optimize", **_row(arts, {
+            "limit_violation": float(np.mean(lim)), "g_mpbpe": float(np.mean(g)), "jerk_frame": float(np.mean(jerk)),
+            "frames_per_s": frames / sec})})  # fmt: skip
+        r = rows[-1]
+        print(f"{t}: {r['floor_frames']:.3f} below -1 cm, deepest {100 * r['floor_depth_max']:.1f} cm", file=sys.stderr)
+    head = (f"{'target':9s} {'method':13s} {'foot<-1cm':>9s} {'deepest':>8s} {'skate':>7s} {'selfpen':>8s} {'>v.lim':>7s}"
+            f" {'floating':>8s} {'limits':>7s} {'g-mpbpe':>8s} {'jerk':>8s} {'fr/s':>6s}")  # fmt: skip
+    print(f"G1 source, frames {args.start + 1}-{args.end} of {', '.join(args.clips)}; shares of frames; deepest [cm], "
+          "skate: median in contact [cm/s]")  # fmt: skip
+    print(head)
+    for r in rows:
+        def num(k, scale=1.0, fmt=".3f"):
+            v = r.get(k, float("nan"))
+            return f"{v * scale:{fmt}}" if np.isfinite(v) else "-"
+
+        print(f"{r['target']:9s} {r['method']:13s} {num('floor_frames'):>9s} {num('floor_depth_max', 100, '.1f'):>8s} "
+              f"{num('skate_median', 100, '.1f'):>7s} {num('selfpen_1cm_frames'):>8s} {num('speed_frames'):>7s} "
+              f"{num('floating_frames'):>8s} {num('limit_violation'):>7s} {num('g_mpbpe', 1, '.4f'):>8s} "
+              f"{num('jerk_frame', 1, '.4f'):>8s} {num('frames_per_s', 1, '.0f'):>6s}")  # fmt: skip
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps({"args": vars(args), "rows": rows}, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
