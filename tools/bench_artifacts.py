@@ -9,6 +9,7 @@ h1, h1_2), the same frames of those are measured the same way, as the peer. Also
 of mer's retarget (the paper's metrics) and frames/s of the retargeting alone.
 
     python tools/bench_artifacts.py --input ../shared/data/lafan1 --json runs/artifacts.json
+    python tools/bench_artifacts.py --input ../shared/data/lafan1 --physics   # with the physical terms
 
 Prints one row per (target, method) over all clips: frames with a foot below -1 cm, deepest [cm],
 median foot skate in contact [cm/s], self-penetration > 1 cm, frame pairs over the URDF velocity
@@ -36,6 +37,7 @@ from mer_data.robots.collision import collision_model  # noqa: E402
 from mer_data.robots.registry import load_robot  # noqa: E402
 from mer_models.retarget.artifacts import motion_artifacts  # noqa: E402
 from mer_models.retarget.clip import retarget_features, sequence_metrics, source_features  # noqa: E402
+from mer_models.solver.physics import PhysicsConfig  # noqa: E402
 
 CLIPS = ("walk1_subject1", "run1_subject2", "jumps1_subject1", "dance1_subject1", "fallAndGetUp1_subject1", "fight1_subject2")
 TARGETS = ("h1", "h1_2", "atlas", "talos", "valkyrie", "oli", "tron1", "g1")
@@ -63,10 +65,13 @@ def main(argv=None) -> int:
     p.add_argument("--end", type=int, default=1050)
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--json", help="also write every figure here")
+    p.add_argument("--physics", action="store_true", help="mer's optimiser with its physical terms (their defaults), as mer retarget --physics")
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
     src = load_robot(args.source)
     sl = slice(args.start, args.end)
+    physics = PhysicsConfig() if args.physics else None
+    label = "mer physics" if args.physics else "mer optimize"
     feats = {}
     for clip in args.clips:
         m = read_lafan1_csv(Path(args.input) / args.source / f"{clip}.csv", src)
@@ -80,7 +85,7 @@ def main(argv=None) -> int:
         peer, peer_lim = [], []
         for clip, f in feats.items():
             t0 = time.perf_counter()
-            res = retarget_features(f, src.skeleton, robot.skeleton, method="optimize", fps=FPS)
+            res = retarget_features(f, src.skeleton, robot.skeleton, method="optimize", fps=FPS, physics=physics)
             sec += time.perf_counter() - t0
             frames += len(f)
             met = sequence_metrics(f, src.skeleton, res.motion, prepared=res.prepared, geometry=geom)
@@ -99,7 +104,7 @@ def main(argv=None) -> int:
                 peer_lim.append(float(((q[:, rev] < lo[rev] - 1e-6) | (q[:, rev] > hi[rev] + 1e-6)).any(1).mean()))
         if peer:
             rows.append({"target": t, "method": "Unitree", **_row(peer, {"limit_violation": float(np.mean(peer_lim))})})
-        rows.append({"target": t, "method": "mer optimize", **_row(arts, {
+        rows.append({"target": t, "method": label, **_row(arts, {
             "limit_violation": float(np.mean(lim)), "g_mpbpe": float(np.mean(g)), "jerk_frame": float(np.mean(jerk)),
             "frames_per_s": frames / sec})})  # fmt: skip
         r = rows[-1]

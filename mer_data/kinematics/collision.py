@@ -73,25 +73,39 @@ def pair_depths(model: Any, pos: torch.Tensor, rot: torch.Tensor, pairs: Any = N
         near &= ~(sep > margin)
     near = near.nonzero()
     if len(near):
-        pts = _t(model.points, pos)
+        pts, verts = _t(model.points, pos), _t(model.vertices, pos)
         planes = _t(model.planes, pos)
         vals = []
         for s in range(0, len(near), chunk):
             f, k = near[s : s + chunk, 0], near[s : s + chunk, 1]
             sa, sb = a[k], b[k]
-            vals.append(torch.maximum(_inside(pts, planes, node, p2, r2, f, sa, sb), _inside(pts, planes, node, p2, r2, f, sb, sa)))
+            # a face of either shape with all of the other's vertices outside separates them: cheap, and most near pairs are
+            gap_ab, gap_ba = _inside(verts, planes, node, p2, r2, f, sa, sb, gap=True), _inside(verts, planes, node, p2, r2, f, sb, sa, gap=True)
+            sep_gap = torch.maximum(gap_ab, gap_ba)
+            v = -sep_gap
+            close = sep_gap <= 0
+            if bool(close.any()):
+                fc, sac, sbc = f[close], sa[close], sb[close]
+                v = v.clone()
+                v[close] = torch.maximum(_inside(pts, planes, node, p2, r2, fc, sac, sbc), _inside(pts, planes, node, p2, r2, fc, sbc, sac))
+            vals.append(v)
         out = out.index_put((near[:, 0], near[:, 1]), torch.cat(vals))
     return out.reshape(*lead, K)
 
 
-def _inside(pts, planes, node, pos, rot, f, sa, sb) -> torch.Tensor:
-    """Depth of shape ``sa``'s points inside shape ``sb`` at frames ``f`` (entries E): (E,)."""
+def _inside(pts, planes, node, pos, rot, f, sa, sb, gap: bool = False) -> torch.Tensor:
+    """Depth of shape ``sa``'s points inside shape ``sb`` at frames ``f`` (entries E): (E,).
+
+    With ``gap``: instead, how far the best of ``sb``'s face planes has all of those points outside
+    (> 0: that face separates the shapes by at least this much)."""
     ra, ta = rot[f, node[sa]], pos[f, node[sa]]
     rb, tb = rot[f, node[sb]], pos[f, node[sb]]
     world = torch.einsum("eij,epj->epi", ra, pts[sa]) + ta[:, None]
     local = torch.einsum("eji,epj->epi", rb, world - tb[:, None])  # into sb's node frame
     pl = planes[sb]  # (E, F, 4)
     signed = torch.einsum("epj,efj->epf", local, pl[..., :3]) + pl[:, None, :, 3]
+    if gap:
+        return signed.amin(1).amax(-1)
     return (-signed.amax(-1)).amax(-1)
 
 

@@ -61,7 +61,19 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fps", type=float, default=30.0, help="frame rate of the input (resampled to 30 Hz)")
     p.add_argument("--device", default="cpu")
     p.add_argument("--allow-unseen", action="store_true", help="retarget to a robot the model never saw (zero-shot)")
+    p.add_argument("--physics", action="store_true",
+                   help="the optimiser (--method optimize, --refine) also keeps every body above the floor "
+                        "(experimental, slower; docs/decisions.md, Physical terms of the optimiser)")
     p.set_defaults(func=cmd_retarget)
+
+
+def _physics(args):
+    """The optimiser's physical terms when ``--physics`` is given (their default weights), else None."""
+    if not args.physics:
+        return None
+    from mer_models.solver.physics import PhysicsConfig
+
+    return PhysicsConfig()
 
 
 def cmd_retarget(args) -> int:
@@ -93,7 +105,8 @@ def cmd_retarget(args) -> int:
     res = retarget_file(
         args.input, args.source, args.target, out_csv=args.output, npz=args.npz, mcap=args.mcap, plot=args.plot,
         video=args.video, video_fps=args.video_fps,
-        model=model, method=args.method, input_fps=args.fps, device=args.device, npz_fps=args.npz_fps, npz_order=args.npz_order, **kw,
+        model=model, method=args.method, input_fps=args.fps, device=args.device, npz_fps=args.npz_fps, npz_order=args.npz_order,
+        physics=_physics(args), **kw,
     )  # fmt: skip
     m = res.motion
     print(f"{args.source} -> {args.target} ({res.method}): {m.num_frames} frames at {m.fps:g} Hz", file=sys.stderr)
@@ -151,7 +164,7 @@ def _dataset(args) -> int:
         summary = retarget_dataset(
             args.input_dir, args.source, args.targets, args.out, method=method, checkpoint=checkpoint,
             formats=args.formats, shard_index=args.shard_index, num_shards=args.num_shards, input_fps=args.fps, npz_fps=args.npz_fps,
-            device=args.device, progress=progress, **kw,
+            device=args.device, progress=progress, physics=_physics(args), **kw,
         )  # fmt: skip
     finally:
         if bar is not None:

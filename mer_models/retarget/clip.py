@@ -103,8 +103,31 @@ def _reference_points(scaled: np.ndarray, shift: np.ndarray, eta: np.ndarray) ->
     return scaled[:, pairs] + shift
 
 
+def physics_inputs(feats: np.ndarray, ref: Skeleton, target: Skeleton, fps: float, cfg, geometry=None):
+    """:class:`~mer_models.solver.physics.PhysicsInputs` of one motion: the target's collision
+    model (``geometry``, else the registered robot of that name if its skeleton is this one, else
+    None: no physical terms), the source's foot contacts from its features (N, Jr, 9)."""
+    from mer_data.motion.contacts import foot_contacts, sole_points
+    from mer_data.motion.features import split_features
+    from mer_data.robots.collision import collision_model
+    from mer_models.solver.physics import PhysicsInputs
+
+    if geometry is None:
+        try:
+            robot = as_robot(target.name)
+        except MerError:
+            return None
+        if robot.skeleton.fingerprint != target.fingerprint:
+            return None  # an augmented or edited skeleton: no registered geometry fits it
+        geometry = collision_model(robot)
+    pos = split_features(torch.from_numpy(np.asarray(feats, np.float64)))["pos"].numpy()
+    contacts = torch.from_numpy(foot_contacts(pos, ref, fps))[None]
+    sp = sole_points(ref)
+    return PhysicsInputs(geometry, contacts, fps, cfg, (tuple(sp["left"]), tuple(sp["right"])))
+
+
 def _optimize_sequence(feats, scaled, rot_goals, ref: Skeleton, target: Skeleton, eta, energy: EnergyConfig, fps, iters, gn_iters, device,
-                       smooth: float = DEFAULT_SMOOTH, init: dict | None = None):
+                       smooth: float = DEFAULT_SMOOTH, init: dict | None = None, physics=None):
     from mer_data.motion.samples import TrainingSample, collate
 
     batch = collate([TrainingSample(feats[:3].astype(np.float32), ref, target, eta)])
@@ -117,8 +140,9 @@ def _optimize_sequence(feats, scaled, rot_goals, ref: Skeleton, target: Skeleton
     warm = None
     if init is not None:
         warm = {k: torch.from_numpy(np.asarray(init[k])).float()[None].to(device) for k in ("q", "base_pos", "base_rot")}
+    phys = physics_inputs(feats, ref, target, fps, physics) if physics is not None else None
     out = optimize_motion(energy, g, eta_t, goal, rot, iters=iters, gn_iters=gn_iters, fps=fps, goal_rot=goal_rot, rot_mask=rot_mask,
-                        smooth=smooth, init=warm)
+                        smooth=smooth, init=warm, physics=phys)
     return {k: out[k][0].double().cpu().numpy() for k in ("q", "base_pos", "base_rot")}
 
 
@@ -154,6 +178,7 @@ def retarget_features_many(
     refine: int = 0,
     progress: Callable[[int, int], None] | None = None,
     bf16: bool = False,
+    physics=None,
 ) -> list[RetargetResult]:
     """Retarget source features (F, Jr, 9) (world frame, at ``fps``) to every robot of ``targets``.
 
@@ -167,6 +192,9 @@ def retarget_features_many(
     robot the model never saw (zero-shot; the paper fine-tunes instead). ``progress`` gets
     (windows done, windows) of the model's pass. ``bf16``: the network under bfloat16 autocast
     (diffusion only; about twice as fast on CPUs with AMX, :mod:`mer_models.diffusion.precision`).
+    ``physics``: a :class:`~mer_models.solver.physics.PhysicsConfig`: the optimiser (and ``refine``)
+    also minimises its physical terms (:mod:`mer_models.solver.physics`; by default: every body
+    above the floor); None (the default): key points and orientations only.
 
     Returns:
         One result per target, in the order of ``targets``.
@@ -203,7 +231,7 @@ def retarget_features_many(
             for i, (t, eta, (feats, scaled, shift, rot_goals)) in enumerate(zip(tgts, etas, prepared)):
                 init = {"q": outs[i]["q"], "base_pos": np.asarray(outs[i]["base_pos"]) - shift, "base_rot": outs[i]["base_rot"]}
                 out = _optimize_sequence(feats, scaled, rot_goals, ref, t, eta, energy or EnergyConfig(), fps, 0, refine, device,
-                                         smooth=opt_smooth, init=init)  # fmt: skip
+                                         smooth=opt_smooth, init=init, physics=physics)  # fmt: skip
                 out["base_pos"] = out["base_pos"] + shift
                 outs[i] = out
             labels = [f"diffusion+refine{refine}"] * len(tgts)
@@ -212,7 +240,7 @@ def retarget_features_many(
         outs = []
         for t, eta, (feats, scaled, shift, rot_goals) in zip(tgts, etas, prepared):
             out = _optimize_sequence(feats, scaled, rot_goals, ref, t, eta, energy or EnergyConfig(), fps, opt_iters, opt_gn_iters,
-                                     device, smooth=opt_smooth)  # fmt: skip
+                                     device, smooth=opt_smooth, physics=physics)  # fmt: skip
             out["base_pos"] = out["base_pos"] + shift
             outs.append(out)
     results = []

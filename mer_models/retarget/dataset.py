@@ -25,6 +25,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import time
@@ -157,8 +158,9 @@ def _read(job: Job, source: Robot, target: Skeleton, fps: float) -> _Clip:
 
 
 def _solve_batch(items: list[tuple[_Clip, tuple[int, int, int, int]]], src: Skeleton, target: Skeleton, span: int,
-                 energy: EnergyConfig, device: str) -> None:  # fmt: skip
-    """Optimise segments of several clips in one batch and write their cores back into the clips."""
+                 energy: EnergyConfig, device: str, physics=None, geometry=None) -> None:  # fmt: skip
+    """Optimise segments of several clips in one batch and write their cores back into the clips
+    (``physics``: a :class:`~mer_models.solver.physics.PhysicsConfig`, with the target's ``geometry``)."""
     eta = joint_map(target, src)
     B = len(items)
 
@@ -170,11 +172,17 @@ def _solve_batch(items: list[tuple[_Clip, tuple[int, int, int, int]]], src: Skel
     rvec = np.stack([pad(c.feats[a:b, 0, 0:3]) for c, (a, b, _, _) in items])
     one = collate([TrainingSample(items[0][0].feats[:3].astype(np.float32), src, target, eta)])  # the target's graph
     g = graph_from_batch(one, "tgt", device).select(torch.zeros(B, dtype=torch.long, device=device))
+    phys = None
+    if physics is not None:
+        from .clip import physics_inputs
+
+        per = [physics_inputs(pad(c.feats[a:b]), src, target, MODEL_FPS, physics, geometry) for c, (a, b, _, _) in items]
+        phys = dataclasses.replace(per[0], contacts=torch.cat([p.contacts for p in per]))
     out = optimize_motion(
         energy, g, torch.from_numpy(eta.astype(np.float32))[None].expand(B, -1, -1).to(device),
         torch.from_numpy(goal).float().to(device), axis_angle_to_matrix(torch.from_numpy(rvec).float()).to(device),
         goal_rot=torch.from_numpy(grot).float().to(device),
-        rot_mask=torch.from_numpy(items[0][0].rot_mask)[None].expand(B, -1).to(device),
+        rot_mask=torch.from_numpy(items[0][0].rot_mask)[None].expand(B, -1).to(device), physics=phys,
     )  # fmt: skip
     q, bp, br = (out[k].double().cpu().numpy() for k in ("q", "base_pos", "base_rot"))
     for k, (c, (a, _, s, e)) in enumerate(items):
@@ -230,6 +238,7 @@ def retarget_dataset(
     energy: EnergyConfig | None = None,
     device: str = "cpu",
     progress: Callable[[int, int], None] | None = None,
+    physics=None,
     **model_kw,
 ) -> dict:
     """Retarget every clip of ``source`` in the input to every target (see the module docstring).
@@ -239,6 +248,8 @@ def retarget_dataset(
         method: ``optimize`` (batched across clips) or ``diffusion`` (``checkpoint`` required).
         formats: any of :data:`FORMATS`; the metrics file is always written; npz_fps: npz frame rate [Hz].
         progress: called with (pairs done, pairs to do) of this run's work.
+        physics: a :class:`~mer_models.solver.physics.PhysicsConfig`: the optimiser's physical terms
+            (both methods: ``diffusion`` with ``refine``); None: key points and orientations only.
         model_kw: options of ``diffusion`` (``steps``, ``guidance``, ``seed``, ``allow_unseen``, ``bf16``, and
             ``refine``: at most that many optimiser iterations from the model's output, as for one file).
 
@@ -275,7 +286,7 @@ def retarget_dataset(
             t0 = time.perf_counter()
             world = _source(cjobs[0], src_robot, input_fps)
             results = retarget_features_many(world, src, [robots[j.target].skeleton for j in cjobs], method="diffusion", checkpoint=checkpoint,
-                                             fps=MODEL_FPS, **model_kw)  # fmt: skip
+                                             fps=MODEL_FPS, physics=physics, **model_kw)  # fmt: skip
             seconds = (time.perf_counter() - t0) / len(cjobs)  # the pass is shared: each pair gets its share
             for j, res in zip(cjobs, results):
                 _write(j, robots[j.target], res.motion, world, src, formats, res.method, seconds, res.prepared, npz_fps)
@@ -288,6 +299,7 @@ def retarget_dataset(
         todo_optimize = todo
     for target_name in sorted({j.target for j in todo_optimize}):
         target = robots[target_name]
+        geometry = collision_model(target) if physics is not None else None
         tjobs = [j for j in todo_optimize if j.target == target_name]
         span = segment + 2 * context
         per_batch = max(1, frames_per_batch // span)
@@ -302,7 +314,7 @@ def retarget_dataset(
             last = k == len(tjobs) - 1
             while len(queue) >= per_batch or (last and queue):
                 items, queue = queue[:per_batch], queue[per_batch:]
-                _solve_batch(items, src, target.skeleton, span, energy, device)
+                _solve_batch(items, src, target.skeleton, span, energy, device, physics, geometry)
                 for c2 in dict.fromkeys(c for c, _ in items):
                     if c2.pending == 0:
                         _finish(c2, target, src, formats, method, time.perf_counter() - started[c2.job.clip], npz_fps)

@@ -285,7 +285,10 @@ def gauss_newton_ik(
         done = it + 1
         change = torch.where(ok, (cost - cost_c) / cost.clamp_min(1e-12), torch.zeros_like(cost))
         if it >= 2:
-            active = active & ~(change < tol).all(-1)
+            if phys is None:
+                active = active & ~(change < tol).all(-1)
+            else:  # one-sided terms make early steps fail: a rejected step is not convergence
+                active = active & ~((ok & (change < tol)) | (mu >= 1e3)).all(-1)
             if not bool(active.any()):
                 break
     if stats is not None:

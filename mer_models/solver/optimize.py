@@ -146,6 +146,8 @@ def optimize_motion(
         raise ValueError(f"fine={fine!r}: expected one of {', '.join(map(repr, FINE_ITERS))}")
     B, T = goal.shape[:2]
     J = graph.parents.shape[1]
+    if physics is not None:
+        goal = physics.lock_goals(goal)
     lower, upper = graph.lower[:, None].expand(B, T, J), graph.upper[:, None].expand(B, T, J)
     gkw = {"goal_rot": goal_rot, "rot_mask": rot_mask}
     with torch.no_grad():
@@ -164,7 +166,7 @@ def optimize_motion(
                 # coarse to fine: key frames first (the prior spans `stride` frames there: weight / stride^2)
                 idx = torch.unique(torch.cat([torch.arange(0, T, stride), torch.tensor([T - 1])])).to(goal.device)
                 sub = {"goal_rot": None if goal_rot is None else goal_rot[:, idx], "rot_mask": rot_mask}
-                coarse = physics.frames(idx, stride) if physics is not None else None
+                coarse = physics.frames(idx, stride) if physics is not None and physics.cfg.coarse else None
                 qk, pk, rk = gauss_newton_ik(cfg, graph, eta, goal[:, idx], q0[:, idx], p0[:, idx], r0[:, idx], iters=gn_iters,
                                              smooth=smooth / stride**2, tol=tol, physics=coarse, **sub)  # fmt: skip
                 warm = _interpolate({"q": qk, "base_pos": pk, "base_rot": rk}, idx, T)

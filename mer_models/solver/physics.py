@@ -3,7 +3,8 @@
 Residual rows added to the Levenberg-Marquardt steps of :mod:`mer_models.solver.ik`, per frame, on
 the target's collision polytopes (:mod:`mer_data.robots.collision`), floor at z = 0:
 
-* **floor** ``w_floor``: every shape's lowest vertex at or above the floor (one-sided);
+* **floor** ``w_floor``: every shape's lowest vertices (:data:`FLOOR_VERTICES`) at or above the
+  floor (one-sided);
 * **stance** (the source's foot down, :func:`mer_data.motion.contacts.foot_contacts`): the foot's
   lowest point on the floor (``w_stance``), the foot flat (its node frame's z axis vertical,
   ``w_flat``: every robot's zero pose stands on flat feet) and put (its node's x, y at the mean of
@@ -11,12 +12,15 @@ the target's collision polytopes (:mod:`mer_data.robots.collision`), floor at z 
 * **swing** (the source's foot up): the foot's lowest point at least ``swing_clearance`` up
   (one-sided, ``w_swing``);
 * **self-penetration** ``w_self``: the deepest point of each interpenetrating pair of checked
-  bodies (:func:`mer_data.kinematics.collision.pair_contacts`) pushed out to ``self_margin``;
-* **joint speed** ``w_speed``: ``|q_t - q_{t+-1}|`` at most ``speed_fraction`` of the URDF velocity
-  limit over a frame (one-sided).
+  bodies (:func:`mer_data.kinematics.collision.pair_contacts`) pushed out to ``self_margin``.
 
-Terms that couple frames (anchors, joint speed) take the neighbours from the previous iterate,
-Jacobi-style, in both solvers. Weights are relative to ``EnergyConfig.w_kp`` (docs/decisions.md).
+Before the solve, the position goals of each stance foot's sole points are held at their stance
+phase's mean x, y (:meth:`PhysicsInputs.lock_goals`, blended over ``lock_blend`` frames): the goals
+of a planted foot do not slide. The anchor term couples frames; it takes the phase means from the
+previous iterate, Jacobi-style, in both solvers. Weights are relative to ``EnergyConfig.w_kp``;
+the defaults (floor and goal locking on, the rest off) and what each term measured are in
+docs/decisions.md §Physical terms. Joint speed has no term yet (a hinge on the neighbours'
+previous iterate blocks the first large steps: measured, see there).
 Jacobians are analytic, the same form as the key points': a point ``p`` moving with node ``k``
 moves by ``a_j x (p - p_j)`` for every joint ``j`` at or above ``k``.
 """
@@ -37,17 +41,17 @@ __all__ = ["PhysicsConfig", "PhysicsInputs", "Physics"]
 class PhysicsConfig:
     """Weights (relative to ``w_kp``) and thresholds [m], [1] of the physical terms."""
 
-    w_floor: float = 20.0
-    w_stance: float = 5.0
-    w_flat: float = 0.05
-    w_anchor: float = 2.0
-    w_swing: float = 1.0
+    w_floor: float = 1.0
+    w_stance: float = 0.0
+    w_flat: float = 0.0
+    w_anchor: float = 0.0
+    w_swing: float = 0.0
     swing_clearance: float = 0.01
-    w_self: float = 10.0
+    w_self: float = 0.0
     self_margin: float = 0.005
     max_contacts: int = 8  # self-penetration rows per frame
-    w_speed: float = 1.0
-    speed_fraction: float = 0.9
+    lock_blend: int = -1  # frames over which a stance foot's goals blend into and out of their anchor (-1: no lock)
+    coarse: bool = True  # also in the optimiser's coarse (key-frame) stage, not only in the fine one
 
 
 @dataclass(frozen=True)
@@ -64,11 +68,29 @@ class PhysicsInputs:
     contacts: torch.Tensor | None
     fps: float
     cfg: PhysicsConfig = PhysicsConfig()
+    ref_feet: tuple[tuple[int, ...], tuple[int, ...]] = ((), ())
 
     def frames(self, idx: torch.Tensor, stride: int) -> "PhysicsInputs":
         """The same for every ``stride``-th frame ``idx`` (a coarse solve)."""
         c = None if self.contacts is None else self.contacts[:, idx]
-        return PhysicsInputs(self.model, c, self.fps / stride, self.cfg)
+        return PhysicsInputs(self.model, c, self.fps / stride, self.cfg, self.ref_feet)
+
+    def lock_goals(self, goal: torch.Tensor) -> torch.Tensor:
+        """The position goals (B, T, Jr, 3) with each stance foot's sole points (``ref_feet``: the
+        reference's ankle and toe nodes) held at their stance phase's mean x, y, blended in and out
+        over ``cfg.lock_blend`` frames: the goals of a planted foot do not slide."""
+        if self.contacts is None or self.cfg.lock_blend < 0:
+            return goal
+        out = goal.clone()
+        for i, nodes in enumerate(self.ref_feet):
+            if not nodes:
+                continue
+            down = self.contacts[..., i].to(goal.device)
+            w = _blend(down, self.cfg.lock_blend).to(goal.dtype)[..., None]  # (B, T, 1)
+            for n in nodes:
+                xy = goal[:, :, n, :2]
+                out[:, :, n, :2] = w * _anchor(xy, down) + (1 - w) * xy
+        return out
 
     def build(self, problem: Any, w_kp: float) -> "Physics":
         """The terms for a solver's problem (:class:`mer_models.solver.ik._Problem`)."""
@@ -76,8 +98,26 @@ class PhysicsInputs:
 
         g = problem.graph
         contacts = None if self.contacts is None else self.contacts.to(problem.dev)
-        return Physics(self.cfg, w_kp, self.model, contacts, problem.fold, problem.cols, problem.col_mask,
-                       ancestors(g.parents), g.axes.to(problem.dtype), self.fps)  # fmt: skip
+        return Physics(self.cfg, w_kp, self.model, contacts, problem.fold, ancestors(g.parents), g.axes.to(problem.dtype))
+
+
+FLOOR_VERTICES = 4  # per shape, the lowest this many vertices are held above the floor
+
+
+def _blend(down: torch.Tensor, k: int) -> torch.Tensor:
+    """(B, T) weight: 1 in the middle of a stance phase, easing to 0 over ``k`` frames at its ends."""
+    if k <= 0:
+        return down.float()
+    x = down.float()
+    T = x.shape[1]
+    dist = torch.full_like(x, float(k))  # frames to the nearest non-stance frame, capped at k
+    for d in range(1, k + 1):
+        left = torch.cat([torch.zeros_like(x[:, :d]), x[:, :-d]], 1) if d < T else torch.zeros_like(x)
+        right = torch.cat([x[:, d:], torch.zeros_like(x[:, :d])], 1) if d < T else torch.zeros_like(x)
+        edge = (left == 0) | (right == 0)
+        dist = torch.where(edge & (dist == k), torch.full_like(x, float(d - 1)), dist)
+    t = (dist + 1) / (k + 1)
+    return x * (t * t * (3 - 2 * t))
 
 
 def _anchor(xy: torch.Tensor, down: torch.Tensor) -> torch.Tensor:
@@ -99,19 +139,18 @@ class Physics:
         cfg: weights; w_kp: the key-point weight they are relative to.
         model: the robot's :class:`~mer_data.robots.collision.CollisionModel`.
         contacts: (B, T, 2) bool, the source's feet down (None: no stance / swing terms).
-        fold: (B, J, D) node → actuated column (mimic joints folded); cols: (B, D) the columns' nodes.
+        fold: (B, J, D) node → actuated column (mimic joints folded).
         anc: (B, J, J) ``[b, k, j]`` True iff j is a strict ancestor of k; axes (B, J, 3) node axes.
-        fps: frame rate [Hz] (joint speed).
     """
 
     def __init__(self, cfg: PhysicsConfig, w_kp: float, model: Any, contacts: torch.Tensor | None, fold: torch.Tensor,
-                 cols: torch.Tensor, col_mask: torch.Tensor, anc: torch.Tensor, axes: torch.Tensor, fps: float) -> None:  # fmt: skip
-        self.cfg, self.model, self.fps = cfg, model, fps
+                 anc: torch.Tensor, axes: torch.Tensor) -> None:  # fmt: skip
+        self.cfg, self.model = cfg, model
         dtype, dev = fold.dtype, fold.device
         J = anc.shape[-1]
         self.moves = (anc | torch.eye(J, dtype=torch.bool, device=dev)).to(dtype)  # [b, k, j]: j moves a point on k
         self.fold, self.axes = fold, axes
-        self.sw = {k: (getattr(cfg, k) * w_kp) ** 0.5 for k in ("w_floor", "w_stance", "w_flat", "w_anchor", "w_swing", "w_self", "w_speed")}
+        self.sw = {k: (getattr(cfg, k) * w_kp) ** 0.5 for k in ("w_floor", "w_stance", "w_flat", "w_anchor", "w_swing", "w_self")}
         self.contacts = contacts
         self.node = torch.as_tensor(model.node, device=dev)
         foot = torch.as_tensor(model.foot, device=dev)
@@ -121,14 +160,11 @@ class Physics:
             nodes = self.node[f] if len(f) else torch.zeros(1, dtype=torch.long, device=dev)
             foot_nodes.append(int(torch.mode(nodes).values) if len(f) else -1)
         self.foot_node = foot_nodes
-        lim = torch.as_tensor(model.velocity_limit, dtype=dtype, device=dev)
-        step = torch.gather(lim[None].expand(cols.shape[0], -1), 1, cols) / fps * cfg.speed_fraction  # (B, D)
-        self.max_step = torch.where(col_mask & torch.isfinite(step), step, torch.full_like(step, float("inf")))[:, None]  # (B,1,D)
 
     # ---- state fixed for one iteration (Jacobi) ---------------------------------------------------------
     def freeze(self, pos: torch.Tensor, rot: torch.Tensor, qd: torch.Tensor) -> dict:
-        """What the coupled terms hold fixed in an iteration: stance anchors and the neighbours' angles."""
-        state: dict = {"q_prev": torch.cat([qd[:, :1], qd[:, :-1]], 1), "q_next": torch.cat([qd[:, 1:], qd[:, -1:]], 1)}
+        """What the coupled terms hold fixed in an iteration: the stance anchors."""
+        state: dict = {}
         if self.contacts is not None:
             state["anchor"] = [_anchor(pos[:, :, n, :2], self.contacts[..., i]) if n >= 0 else None
                                for i, n in enumerate(self.foot_node)]  # fmt: skip
@@ -146,12 +182,17 @@ class Physics:
         low_p = torch.gather(verts, 3, low_v[..., None, None].expand(B, T, S, 1, 3))[..., 0, :]  # (B, T, S, 3)
         nodes, points, dirs, res, jws = [], [], [], [], []
         ez = torch.tensor([0.0, 0.0, 1.0], dtype=dtype, device=dev)
-        # floor: every shape's lowest vertex
-        nodes.append(self.node.expand(B, T, S))
-        points.append(low_p)
-        dirs.append(ez.expand(B, T, S, 3))
-        res.append(self.sw["w_floor"] * low_z.clamp_max(0))
-        jws.append(self.sw["w_floor"] * (low_z < 0).to(dtype))
+        # floor: the FLOOR_VERTICES lowest vertices of every shape (one alone would let a step tip the shape
+        # onto another corner)
+        k = min(FLOOR_VERTICES, verts.shape[3])
+        kz, kv = verts[..., 2].topk(k, dim=-1, largest=False)  # (B, T, S, k)
+        kp = torch.gather(verts, 3, kv[..., None].expand(B, T, S, k, 3))
+        nodes.append(self.node[:, None].expand(S, k).expand(B, T, S, k).reshape(B, T, S * k))
+        points.append(kp.reshape(B, T, S * k, 3))
+        dirs.append(ez.expand(B, T, S * k, 3))
+        kz = kz.reshape(B, T, S * k)
+        res.append(self.sw["w_floor"] * kz.clamp_max(0))
+        jws.append(self.sw["w_floor"] * (kz < 0).to(dtype))
         col_nodes, col_dirs, col_res, col_w = [], [], [], []
         if self.contacts is not None:
             for i, f in enumerate(self.feet):
@@ -181,10 +222,11 @@ class Physics:
                     col_res.append(self.sw["w_flat"] * rot[:, :, n, axis, 2] * down)  # the foot's z axis, tilted
                     col_w.append(self.sw["w_flat"] * down)
         # self-penetration: the deepest points
-        ca = pair_contacts(self.model, pos, rot, margin=c.self_margin, top=c.max_contacts)
+        ca = pair_contacts(self.model, pos, rot, margin=c.self_margin, top=c.max_contacts) if c.w_self > 0 else None
         if ca is not None:
             depth, pt, normal, na, nb = ca  # (B, T, K) ...
             active = (depth > -c.self_margin).to(dtype)
+            depth = torch.where(active > 0, depth, torch.zeros_like(depth))  # padding is -inf
             nodes.append(torch.stack([na, nb], -1))  # rows with two bodies: handled via the 'other' node
             points.append(pt)
             dirs.append(-normal)
@@ -198,16 +240,7 @@ class Physics:
         out = sum((r**2).sum(-1) for r in res)
         for r in col_res:
             out = out + r**2
-        return out + (self._speed(qd, state)[0] ** 2).sum(-1)
-
-    def _speed(self, qd: torch.Tensor, state: dict) -> tuple[torch.Tensor, torch.Tensor]:
-        """Residuals (B, T, D) of the joint-speed term and their derivative in q_t (+-1 or 0)."""
-        w = self.sw["w_speed"]
-        over_p = (qd - state["q_prev"]).abs() - self.max_step
-        over_n = (qd - state["q_next"]).abs() - self.max_step
-        r = w * (over_p.clamp_min(0) + over_n.clamp_min(0))
-        d = w * (torch.sign(qd - state["q_prev"]) * (over_p > 0) + torch.sign(qd - state["q_next"]) * (over_n > 0))
-        return r, d
+        return out
 
     def linearise(self, pos: torch.Tensor, rot: torch.Tensor, qd: torch.Tensor, state: dict) -> tuple[torch.Tensor, torch.Tensor]:
         """The terms' Gauss-Newton normal equations: ``J^T J`` (B, T, n, n) and ``J^T r`` (B, T, n)."""
@@ -215,25 +248,33 @@ class Physics:
         nodes, points, dirs, res, jws, (col_nodes, col_dirs, col_res, col_w) = self._rows(pos, rot, state, True)
         axes_w = (rot @ self.axes[:, None, :, :, None]).squeeze(-1)  # (B, T, J, 3)
         D = self.fold.shape[-1]
-        rows = []
-        resid = []
+        n_cols = D + 6
+        h = pos.new_zeros(B * T, n_cols, n_cols)
+        g = pos.new_zeros(B * T, n_cols)
+        ax_p = torch.linalg.cross(axes_w, pos, dim=-1).reshape(B * T, J, 3)  # a_j x p_j, once per frame
+        ax = axes_w.reshape(B * T, J, 3)
+        base = pos[:, :, 0].reshape(B * T, 3)
         for n, p, u, r, w in zip(nodes, points, dirs, res, jws):
             two = n.dim() == 4  # (B, T, K, 2): a pair of bodies (point on the first, normal of the second)
-            na = n[..., 0] if two else n
-            lever = p[:, :, :, None, :] - pos[:, :, None, :, :]  # (B, T, R, J, 3)
-            dq = (torch.linalg.cross(axes_w[:, :, None].expand_as(lever), lever) * u[:, :, :, None, :]).sum(-1)  # (B, T, R, J)
-            bidx = torch.arange(B, device=pos.device)[:, None, None]
-            m = self.moves[bidx, na]  # (B, T, R, J)
-            has = torch.ones_like(r)
+            act = (w != 0).nonzero(as_tuple=True)  # only the active rows are linearised
+            if not len(act[0]):
+                continue
+            f = act[0] * T + act[1]  # frame of each row
+            pe, ue, re, we = p[act], u[act], r[act], w[act]
+            # u . (a_j x (p - p_j)) = a_j . (p x u) - u . (a_j x p_j)
+            dq = torch.einsum("ejk,ek->ej", ax[f], torch.linalg.cross(pe, ue, dim=-1)) - torch.einsum("ejk,ek->ej", ax_p[f], ue)
+            b = act[0]
+            m = self.moves[b, (n[..., 0] if two else n)[act]]
+            has = 0.0 if two else 1.0
             if two:
-                m = m - self.moves[bidx, n[..., 1]]
-                has = torch.zeros_like(r)
-            jq = (dq * m).flatten(1, 2) @ self.fold  # (B, T*R, D)
-            jq = jq.view(B, T, -1, D)
-            jt = u * has[..., None]
-            jr = torch.linalg.cross(p - pos[:, :, :1], u) * has[..., None]
-            rows.append(torch.cat([jq, jt, jr], -1) * w[..., None])  # inactive rows: weight 0, no Jacobian
-            resid.append(r)
+                m = m - self.moves[b, n[..., 1][act]]
+            jq = torch.einsum("ej,ejd->ed", dq * m, self.fold[b])
+            jr = torch.linalg.cross(pe - base[f], ue, dim=-1) * has
+            jrow = torch.cat([jq, ue * has, jr], -1) * we[:, None]  # (E, n), weighted like its residual
+            h.index_add_(0, f, jrow[:, :, None] * jrow[:, None, :])
+            g.index_add_(0, f, jrow * re[:, None])
+        h, g = h.view(B, T, n_cols, n_cols), g.view(B, T, n_cols)
+        rows, resid = [], []
         for n, e, r, w in zip(col_nodes, col_dirs, col_res, col_w):
             c = rot[:, :, n, :, 2]  # (B, T, 3) the foot's z axis
             dq = (torch.linalg.cross(axes_w, c[:, :, None].expand_as(axes_w)) * e).sum(-1)  # (B, T, J)
@@ -242,11 +283,9 @@ class Physics:
             jrow = torch.cat([jq, torch.zeros_like(c), jr], -1)[:, :, None] * w[..., None, None]
             rows.append(jrow)
             resid.append(r[..., None])
-        jac = torch.cat(rows, 2)  # (B, T, R, n), rows weighted like their residuals
-        rr = torch.cat(resid, 2)
-        h = jac.transpose(-1, -2) @ jac
-        g = (jac.transpose(-1, -2) @ rr[..., None])[..., 0]
-        sr, sd = self._speed(qd, state)
-        h = h + torch.diag_embed(torch.cat([sd**2, torch.zeros(B, T, 6, dtype=h.dtype, device=h.device)], -1))
-        g = g + torch.cat([sr * sd, torch.zeros(B, T, 6, dtype=g.dtype, device=g.device)], -1)
+        if rows:
+            jac = torch.cat(rows, 2)  # (B, T, R, n), rows weighted like their residuals
+            rr = torch.cat(resid, 2)
+            h = h + jac.transpose(-1, -2) @ jac
+            g = g + (jac.transpose(-1, -2) @ rr[..., None])[..., 0]
         return h, g

@@ -1,0 +1,127 @@
+"""The optimiser's physical terms: their analytic Jacobians against finite differences of their cost,
+and what each does to a motion built to need it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from mer_data.kinematics.jointmap import joint_map
+from mer_data.kinematics.rotations import axis_angle_to_matrix
+from mer_data.motion.samples import TrainingSample, collate
+from mer_data.robots.collision import collision_model
+from mer_data.robots.registry import load_robot
+from mer_models.batch import graph_from_batch
+from mer_models.config import EnergyConfig
+from mer_models.solver.ik import _Problem
+from mer_models.solver.physics import PhysicsConfig, PhysicsInputs, _blend
+
+
+def _problem(name: str, T: int, seed: int):
+    r = load_robot(name)
+    s = r.skeleton
+    eta = joint_map(s, s)
+    batch = collate([TrainingSample(np.zeros((3, s.num_nodes, 9), np.float32), s, s, eta)])
+    g = graph_from_batch(batch, "tgt", "cpu")
+    rng = np.random.default_rng(seed)
+    q = torch.from_numpy(rng.uniform(s.lower, s.upper) * 0.5)[None, None].expand(1, T, -1).clone()
+    lo, hi = torch.from_numpy(s.lower.copy()), torch.from_numpy(s.upper.copy())
+    q = q + torch.from_numpy(rng.normal(size=(1, T, s.num_nodes)) * 0.05)
+    q = torch.minimum(torch.maximum(q, lo), hi)
+    goal = torch.zeros(1, T, s.num_nodes, 3, dtype=torch.float64)
+    P = _Problem(EnergyConfig(), g, torch.from_numpy(eta)[None].double(), goal, q, None, None)
+    return r, P, q
+
+
+@pytest.mark.parametrize("name", ["h1", "talos"])
+def test_jacobians_match_finite_differences(name):
+    T = 4
+    r, P, q = _problem(name, T, 1)
+    s = r.skeleton
+    rest_low = -s.rest_positions[:, 2].min()
+    base_pos = torch.tensor([0.0, 0.0, rest_low - 0.03], dtype=torch.float64).expand(1, T, 3).clone()  # 3 cm into the floor
+    base_rot = axis_angle_to_matrix(torch.tensor([[0.05, -0.04, 0.3]], dtype=torch.float64)).expand(1, T, 3, 3).clone()
+    contacts = torch.tensor([[[True, False], [True, False], [False, True], [True, True]]])
+    cfg = PhysicsConfig(w_floor=3, w_stance=1, w_anchor=1, w_flat=1, w_swing=1, w_self=3, self_margin=0.02)
+    phys = PhysicsInputs(collision_model(r), contacts, 30.0, cfg).build(P, 1.0)
+    qd = P.columns(q)
+
+    def cost(qd, bp, br, state):
+        pos, rot, *_ = P.fit(qd, bp, br)
+        return phys.cost(pos, rot, qd, state).sum()
+
+    pos, rot, *_ = P.fit(qd, base_pos, base_rot)
+    state = phys.freeze(pos, rot, qd)
+    h, g = phys.linearise(pos, rot, qd, state)
+    eps = 1e-6
+    D = P.D
+    num = torch.zeros(1, T, D + 6, dtype=torch.float64)
+    rng = np.random.default_rng(0)
+    picked = torch.zeros(1, T, D + 6, dtype=torch.bool)
+    for t in range(T):
+        for d in sorted({*rng.choice(D, 8, replace=False).tolist(), *range(D, D + 6)}):  # 8 joints and the base
+            picked[0, t, d] = True
+            step = torch.zeros(1, T, D + 6, dtype=torch.float64)
+            step[0, t, d] = eps
+            vals = []
+            for sgn in (1, -1):
+                st = step * sgn
+                qd2 = qd + st[..., :D] * P.col_mask[:, None]
+                bp2 = base_pos + st[..., D : D + 3]
+                br2 = axis_angle_to_matrix(st[..., D + 3 :]) @ base_rot
+                vals.append(cost(qd2, bp2, br2, state))
+            num[0, t, d] = (vals[0] - vals[1]) / (2 * eps)
+    mask = torch.cat([P.col_mask[:, None].expand(1, T, D), torch.ones(1, T, 6, dtype=torch.bool)], -1) & picked
+    assert float(num.abs().max()) > 1e-3  # the terms are active: the comparison can fail
+    torch.testing.assert_close((2 * g)[mask], num[mask], atol=2e-5, rtol=1e-4)
+
+
+def test_blend_eases_in_and_out():
+    down = torch.tensor([[0, 1, 1, 1, 1, 1, 1, 1, 1, 1, 0]], dtype=torch.bool)
+    w = _blend(down, 3)
+    assert w[0, 0] == 0 and w[0, -1] == 0 and w[0, 5] == 1
+    assert (w[0, 1:5].diff() > 0).all() and (w[0, 6:10].diff() < 0).all()
+
+
+def _standing_features(name: str, F: int, sink: float):
+    """Features of ``name`` standing still at its zero pose, its soles ``sink`` [m] below the floor."""
+    from mer_data.kinematics.collision import shape_points
+    from mer_models.retarget.clip import source_features
+
+    r = load_robot(name)
+    s = r.skeleton
+    m = collision_model(r)
+    J = s.num_nodes
+    low = float(shape_points(m, torch.from_numpy(s.rest_positions), torch.eye(3, dtype=torch.float64).expand(J, 3, 3))[..., 2].min())
+    base = np.zeros((F, 3))
+    base[:, 2] = -low - sink
+    quat = np.tile([1.0, 0, 0, 0], (F, 1))
+    return r, source_features(base, quat, np.zeros((F, J)), s, 30.0)
+
+
+def test_the_floor_term_keeps_a_sunken_reference_on_the_floor():
+    from mer_models.retarget.clip import retarget_features, sequence_metrics
+
+    r, feats = _standing_features("h1", 30, 0.05)
+    s, geom = r.skeleton, collision_model(r)
+    plain = retarget_features(feats, s, s, method="optimize", fps=30.0)
+    phys = retarget_features(feats, s, s, method="optimize", fps=30.0, physics=PhysicsConfig())
+    a = sequence_metrics(feats, s, plain.motion, prepared=plain.prepared, geometry=geom)
+    b = sequence_metrics(feats, s, phys.motion, prepared=phys.prepared, geometry=geom)
+    assert a["floor_frames"] == 1.0 and a["floor_depth_max"] > 0.045  # the goals are 5 cm under: so is the plain solution
+    assert b["floor_frames"] == 0.0 and b["floor_depth_max"] < 0.01
+    assert b["g_mpbpe"] < 0.06  # it stood up instead: about the 5 cm the goals asked for
+
+
+def test_locked_goals_hold_a_stance_foot():
+    rng = np.random.default_rng(0)
+    goal = torch.from_numpy(rng.normal(size=(1, 20, 5, 3)))
+    contacts = torch.zeros(1, 20, 2, dtype=torch.bool)
+    contacts[0, 3:15, 0] = True
+    inputs = PhysicsInputs(None, contacts, 30.0, PhysicsConfig(lock_blend=2), ((1, 2), ()))
+    out = inputs.lock_goals(goal)
+    held = out[0, 6:12, 1, :2]
+    assert torch.allclose(held, held[:1].expand_as(held))  # planted: one x, y
+    assert torch.equal(out[..., 2], goal[..., 2]) and torch.equal(out[:, :, [0, 3, 4]], goal[:, :, [0, 3, 4]])
+    assert torch.equal(out[0, 16:], goal[0, 16:])  # after the phase (and its blend): the goals as they were
