@@ -439,24 +439,32 @@ def coupled_lm_ik(
         h, g = P.linearise(pos, rot, kp, ocols)
         h = h + torch.diag_embed(prior_h)
         g = g + prior_grad(qd)
+        c_speed = None
         if phys is not None:  # the physical terms, their coupled parts held at this iterate
             state = phys.freeze(pos, rot, qd)
-            cost = frame_cost(fit, qd) + phys.cost(pos, rot, qd, state)
+            cost = frame_cost(fit, qd) + phys.cost(pos, rot, qd, state) + phys.speed_cost(qd, P.cols)
             ph, pg = phys.linearise(pos, rot, qd, state)
             h, g = h + ph, g + pg
+            sp = phys.speed_terms(qd, P.cols)  # joint speed: exact coupling of neighbouring frames
+            if sp is not None:
+                diag, off, grad = sp
+                h = h + torch.diag_embed(torch.cat([diag, P.zeros(B, T, 6)], -1))
+                g = g + torch.cat([grad, P.zeros(B, T, 6)], -1)
+                c_speed = torch.cat([off, P.zeros(B, T - 1, 6)], -1)
         # active set: a joint at a limit that the gradient pushes further out stays where it is
         gq = g[..., :D]
         fixed = ((qd <= P.lower) & (gq > 0)) | ((qd >= P.upper) & (gq < 0))  # (B, T, D)
         free = torch.cat([~fixed, torch.ones(B, T, 6, dtype=torch.bool, device=P.dev)], -1).to(P.dtype)
         h = h * free[..., :, None] * free[..., None, :] + torch.diag_embed(1 - free)
         g = g * free
-        c = coupling[:, None] * free[:, 1:] * free[:, :-1]  # (B, T-1, n): a held joint is coupled to nothing
+        c = coupling[:, None] if c_speed is None else coupling[:, None] + c_speed
+        c = c * free[:, 1:] * free[:, :-1]  # (B, T-1, n): a held joint is coupled to nothing
         step, solved = _block_tridiagonal_solve(P.damp(h, mu[:, None]), c, -g)
         qd_c, bp_c, br_c = P.candidate(qd, base_pos, base_rot, step)
         pos_c, rot_c, kp_c, ocols_c, fit_c = P.fit(qd_c, bp_c, br_c)
         cost_c = frame_cost(fit_c, qd_c)
         if phys is not None:
-            cost_c = cost_c + phys.cost(pos_c, rot_c, qd_c, state)
+            cost_c = cost_c + phys.cost(pos_c, rot_c, qd_c, state) + phys.speed_cost(qd_c, P.cols)
         total, total_c = cost.sum(-1), cost_c.sum(-1)
         ok = (total_c < total) & active & solved
         o1, o2, o3 = ok[:, None, None], ok[:, None, None, None], ok[:, None, None, None, None]

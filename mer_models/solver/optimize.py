@@ -172,6 +172,8 @@ def optimize_motion(
                 warm = _interpolate({"q": qk, "base_pos": pk, "base_rot": rk}, idx, T)
                 q0, p0, r0 = warm["q"], warm["base_pos"], warm["base_rot"]
                 ik_iters = min(gn_iters, FINE_ITERS[fine] if refine_iters is None else refine_iters)
+                if physics is not None and physics.cfg.fine_iters:
+                    ik_iters = max(ik_iters, physics.cfg.fine_iters)
                 whole = fine == "coupled" and smooth > 0
             if whole:
                 q0, p0, r0 = coupled_lm_ik(cfg, graph, eta, goal, q0, p0, r0, iters=ik_iters, smooth=smooth, tol=tol,

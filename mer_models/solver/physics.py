@@ -12,15 +12,17 @@ the target's collision polytopes (:mod:`mer_data.robots.collision`), floor at z 
 * **swing** (the source's foot up): the foot's lowest point at least ``swing_clearance`` up
   (one-sided, ``w_swing``);
 * **self-penetration** ``w_self``: the deepest point of each interpenetrating pair of checked
-  bodies (:func:`mer_data.kinematics.collision.pair_contacts`) pushed out to ``self_margin``.
+  bodies (:func:`mer_data.kinematics.collision.pair_contacts`) pushed out to ``self_margin``;
+* **joint speed** ``w_speed``: ``|q_{t+1} - q_t|`` at most ``speed_fraction`` of the URDF velocity
+  limit per frame (one-sided), in the whole-window solver only (:func:`~.ik.coupled_lm_ik`), whose
+  block-tridiagonal system couples the frames exactly (:meth:`Physics.speed_terms`).
 
 Before the solve, the position goals of each stance foot's sole points are held at their stance
 phase's mean x, y (:meth:`PhysicsInputs.lock_goals`, blended over ``lock_blend`` frames): the goals
 of a planted foot do not slide. The anchor term couples frames; it takes the phase means from the
 previous iterate, Jacobi-style, in both solvers. Weights are relative to ``EnergyConfig.w_kp``;
-the defaults (floor and goal locking on, the rest off) and what each term measured are in
-docs/decisions.md §Physical terms. Joint speed has no term yet (a hinge on the neighbours'
-previous iterate blocks the first large steps: measured, see there).
+the defaults (floor and joint speed on, the rest off) and what each term measured are in
+docs/decisions.md §Physical terms of the optimiser.
 Jacobians are analytic, the same form as the key points': a point ``p`` moving with node ``k``
 moves by ``a_j x (p - p_j)`` for every joint ``j`` at or above ``k``.
 """
@@ -50,8 +52,11 @@ class PhysicsConfig:
     w_self: float = 0.0
     self_margin: float = 0.005
     max_contacts: int = 8  # self-penetration rows per frame
+    w_speed: float = 1.0
+    speed_fraction: float = 0.95  # joint speed held under this share of the URDF velocity limit
     lock_blend: int = -1  # frames over which a stance foot's goals blend into and out of their anchor (-1: no lock)
     coarse: bool = True  # also in the optimiser's coarse (key-frame) stage, not only in the fine one
+    fine_iters: int = 8  # at least this many iterations of the fine (whole-window) stage (0: the optimiser's own)
 
 
 @dataclass(frozen=True)
@@ -98,7 +103,7 @@ class PhysicsInputs:
 
         g = problem.graph
         contacts = None if self.contacts is None else self.contacts.to(problem.dev)
-        return Physics(self.cfg, w_kp, self.model, contacts, problem.fold, ancestors(g.parents), g.axes.to(problem.dtype))
+        return Physics(self.cfg, w_kp, self.model, contacts, problem.fold, ancestors(g.parents), g.axes.to(problem.dtype), self.fps)
 
 
 FLOOR_VERTICES = 4  # per shape, the lowest this many vertices are held above the floor
@@ -139,13 +144,13 @@ class Physics:
         cfg: weights; w_kp: the key-point weight they are relative to.
         model: the robot's :class:`~mer_data.robots.collision.CollisionModel`.
         contacts: (B, T, 2) bool, the source's feet down (None: no stance / swing terms).
-        fold: (B, J, D) node → actuated column (mimic joints folded).
+        fold: (B, J, D) node → actuated column (mimic joints folded); fps: frame rate [Hz] (joint speed).
         anc: (B, J, J) ``[b, k, j]`` True iff j is a strict ancestor of k; axes (B, J, 3) node axes.
     """
 
     def __init__(self, cfg: PhysicsConfig, w_kp: float, model: Any, contacts: torch.Tensor | None, fold: torch.Tensor,
-                 anc: torch.Tensor, axes: torch.Tensor) -> None:  # fmt: skip
-        self.cfg, self.model = cfg, model
+                 anc: torch.Tensor, axes: torch.Tensor, fps: float = 30.0) -> None:  # fmt: skip
+        self.cfg, self.model, self.fps, self.w_kp = cfg, model, fps, w_kp
         dtype, dev = fold.dtype, fold.device
         J = anc.shape[-1]
         self.moves = (anc | torch.eye(J, dtype=torch.bool, device=dev)).to(dtype)  # [b, k, j]: j moves a point on k
@@ -289,3 +294,38 @@ class Physics:
             h = h + jac.transpose(-1, -2) @ jac
             g = g + (jac.transpose(-1, -2) @ rr[..., None])[..., 0]
         return h, g
+
+    # ---- joint speed: couples neighbouring frames exactly (coupled_lm_ik only) ----------------------------
+    def _step_limit(self, cols: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
+        """(B, 1, D) the largest angle change per frame of each column [rad] (inf: no limit)."""
+        lim = torch.as_tensor(self.model.velocity_limit, dtype=like.dtype, device=like.device)
+        return (torch.gather(lim[None].expand(cols.shape[0], -1), 1, cols) / self.fps * self.cfg.speed_fraction)[:, None]
+
+    def speed_cost(self, qd: torch.Tensor, cols: torch.Tensor) -> torch.Tensor:
+        """(B, T) ``w_speed * (|q_{t+1} - q_t| - limit)^2`` over the differences, each split between its frames."""
+        out = torch.zeros(qd.shape[:2], dtype=qd.dtype, device=qd.device)
+        if self.cfg.w_speed <= 0 or qd.shape[1] < 2:
+            return out
+        over = ((qd[:, 1:] - qd[:, :-1]).abs() - self._step_limit(cols, qd)).clamp_min(0)
+        e = self.cfg.w_speed * self.w_kp * (over**2).sum(-1)
+        out[:, 1:] += 0.5 * e
+        out[:, :-1] += 0.5 * e
+        return out
+
+    def speed_terms(self, qd: torch.Tensor, cols: torch.Tensor):
+        """The joint-speed term's Gauss-Newton parts: diagonal (B, T, D), coupling of frames t and
+        t + 1 (B, T-1, D) and gradient ``J^T r`` (B, T, D); None when off."""
+        if self.cfg.w_speed <= 0 or qd.shape[1] < 2:
+            return None
+        d = qd[:, 1:] - qd[:, :-1]
+        over = d.abs() - self._step_limit(cols, qd)
+        act = (over > 0).to(qd.dtype)
+        w = self.cfg.w_speed * self.w_kp * act
+        diag = torch.zeros_like(qd)
+        diag[:, 1:] += w
+        diag[:, :-1] += w
+        r = w * torch.sign(d) * over.clamp_min(0)  # d cost / d q_{t+1}, halved
+        grad = torch.zeros_like(qd)
+        grad[:, 1:] += r
+        grad[:, :-1] -= r
+        return diag, -w, grad

@@ -125,3 +125,27 @@ def test_locked_goals_hold_a_stance_foot():
     assert torch.allclose(held, held[:1].expand_as(held))  # planted: one x, y
     assert torch.equal(out[..., 2], goal[..., 2]) and torch.equal(out[:, :, [0, 3, 4]], goal[:, :, [0, 3, 4]])
     assert torch.equal(out[0, 16:], goal[0, 16:])  # after the phase (and its blend): the goals as they were
+
+
+def test_joint_speed_term_gradient_and_coupling():
+    """The joint-speed term's gradient against finite differences of its cost, and its coupling
+    block: the cost is a sum of ``(|q_{t+1} - q_t| - limit)^2``, so ``J^T J`` couples t and t + 1
+    with minus the diagonal's share."""
+    r, P, q = _problem("h1", 5, 3)
+    s = r.skeleton
+    phys = PhysicsInputs(collision_model(r), None, 30.0, PhysicsConfig(w_speed=2.0)).build(P, 1.0)
+    qd = P.columns(q).clone()
+    lim = phys._step_limit(P.cols, qd)[0, 0]
+    j = int(torch.isfinite(lim).nonzero()[0])
+    qd[0, :, j] = torch.tensor([0.0, 3.0, 2.5, 6.0, 6.1], dtype=qd.dtype) * lim[j]  # 3x, 0.5x, 3.5x, 0.1x the limit
+    diag, off, grad = phys.speed_terms(qd, P.cols)
+    eps = 1e-6
+    for t in range(5):
+        up, down = qd.clone(), qd.clone()
+        up[0, t, j] += eps
+        down[0, t, j] -= eps
+        num = (phys.speed_cost(up, P.cols).sum() - phys.speed_cost(down, P.cols).sum()) / (2 * eps)
+        assert float(2 * grad[0, t, j]) == pytest.approx(float(num), rel=1e-4, abs=1e-8)
+    active = torch.tensor([1.0, 0.0, 1.0, 0.0]) * 2.0
+    assert torch.allclose(off[0, :, j], -active.to(off.dtype)) and torch.allclose(diag[0, 1:-1, j], (active[1:] + active[:-1]).to(diag.dtype))
+    assert phys.speed_cost(qd * 0, P.cols).sum() == 0
