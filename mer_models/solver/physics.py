@@ -17,9 +17,9 @@ the target's collision polytopes (:mod:`mer_data.robots.collision`), floor at z 
   limit per frame (one-sided), in the whole-window solver only (:func:`~.ik.coupled_lm_ik`), whose
   block-tridiagonal system couples the frames exactly (:meth:`Physics.speed_terms`).
 
-Before the solve, the position goals of each stance foot's sole points are held at their stance
-phase's mean x, y (:meth:`PhysicsInputs.lock_goals`, blended over ``lock_blend`` frames): the goals
-of a planted foot do not slide. The anchor term couples frames; it takes the phase means from the
+With ``lock_blend`` >= 0, before the solve, the position goals of each stance foot's sole points
+are held at their stance phase's mean x, y (:meth:`PhysicsInputs.lock_goals`, blended over
+``lock_blend`` frames): the goals of a planted foot do not slide. The anchor term couples frames; it takes the phase means from the
 previous iterate, Jacobi-style, in both solvers. Weights are relative to ``EnergyConfig.w_kp``;
 the defaults (floor and joint speed on, the rest off) and what each term measured are in
 docs/decisions.md §Physical terms of the optimiser.

@@ -132,7 +132,6 @@ def test_joint_speed_term_gradient_and_coupling():
     block: the cost is a sum of ``(|q_{t+1} - q_t| - limit)^2``, so ``J^T J`` couples t and t + 1
     with minus the diagonal's share."""
     r, P, q = _problem("h1", 5, 3)
-    s = r.skeleton
     phys = PhysicsInputs(collision_model(r), None, 30.0, PhysicsConfig(w_speed=2.0)).build(P, 1.0)
     qd = P.columns(q).clone()
     lim = phys._step_limit(P.cols, qd)[0, 0]
