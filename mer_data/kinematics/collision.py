@@ -18,7 +18,7 @@ from typing import Any
 
 import torch
 
-__all__ = ["shape_points", "lowest_points", "pair_depths", "pair_contacts"]
+__all__ = ["shape_points", "lowest_points", "pair_depths", "pair_contacts", "contact_points"]
 
 
 def _t(a: Any, like: torch.Tensor) -> torch.Tensor:
@@ -109,21 +109,20 @@ def _inside(pts, planes, node, pos, rot, f, sa, sb, gap: bool = False) -> torch.
     return (-signed.amax(-1)).amax(-1)
 
 
-def pair_contacts(model: Any, pos: torch.Tensor, rot: torch.Tensor, *, margin: float = 0.0, top: int = 8):
-    """The deepest point of the ``top`` deepest checked pairs of every frame (what pushes bodies apart).
+def pair_contacts(model: Any, pos: torch.Tensor, rot: torch.Tensor, *, margin: float = 0.0, top: int = 8, pairs: Any = None):
+    """The ``top`` deepest checked pairs of every frame, and their deepest points (what pushes bodies apart).
 
     Args:
         pos, rot: (B, T, J, 3), (B, T, J, 3, 3) node poses.
+        pairs: (K, 2) the shape pairs to look at (default ``model.pairs``).
 
     Returns:
-        None if no pair is within ``margin``; else depth (B, T, K) [m] (``-inf`` on padding),
-        point (B, T, K, 3) the deepest point (world) of the body that reaches in, normal (B, T, K, 3)
-        the outward normal (world) of the face of the other body it is nearest to, and the nodes
-        (B, T, K) of the reaching body and of the other one. ``depth`` falls as the point moves
-        along ``normal`` relative to the other body: ``d depth = -normal . (dp_point - dp_other)``.
+        None if no pair is within ``margin``; else ``(entries, contacts)``: entries ``(b, t, slot,
+        shape_a, shape_b)`` (E,) each, which :func:`contact_points` takes, and its result for them.
     """
     B, T = pos.shape[:2]
-    d = pair_depths(model, pos, rot, margin=margin)  # (B, T, K)
+    pairs = torch.as_tensor(model.pairs if pairs is None else pairs, device=pos.device).reshape(-1, 2)
+    d = pair_depths(model, pos, rot, pairs, margin=margin)  # (B, T, K)
     K = min(top, d.shape[-1])
     if K == 0:
         return None
@@ -131,12 +130,26 @@ def pair_contacts(model: Any, pos: torch.Tensor, rot: torch.Tensor, *, margin: f
     sel = depth > -margin
     if not bool(sel.any()):
         return None
-    pairs = torch.as_tensor(model.pairs, device=pos.device)
-    node = torch.as_tensor(model.node, device=pos.device)
-    pts, planes = _t(model.points, pos), _t(model.planes, pos)
     bi, ti, ki = sel.nonzero(as_tuple=True)
     pk = k[bi, ti, ki]
-    sa, sb = pairs[pk, 0], pairs[pk, 1]
+    entries = (bi, ti, ki, pairs[pk, 0], pairs[pk, 1])
+    return entries, contact_points(model, pos, rot, entries, K)
+
+
+def contact_points(model: Any, pos: torch.Tensor, rot: torch.Tensor, entries: tuple, K: int):
+    """Depth and deepest point of given (frame, pair) entries (:func:`pair_contacts`), laid out (B, T, K).
+
+    Returns:
+        depth (B, T, K) [m] (``-inf`` where no entry), point (B, T, K, 3) the deepest point (world)
+        of the body that reaches in, normal (B, T, K, 3) the outward normal (world) of the face of
+        the other body it is nearest to, and the nodes (B, T, K) of the reaching body and of the
+        other one. ``depth`` falls as the point moves along ``normal`` relative to the other body:
+        ``d depth = -normal . (dp_point - dp_other)``.
+    """
+    B, T = pos.shape[:2]
+    bi, ti, ki, sa, sb = entries
+    node = torch.as_tensor(model.node, device=pos.device)
+    pts, planes = _t(model.points, pos), _t(model.planes, pos)
     p2, r2 = pos.reshape(B * T, *pos.shape[2:]), rot.reshape(B * T, *rot.shape[2:])
     f = bi * T + ti
     da, pa, na = _deepest(pts, planes, node, p2, r2, f, sa, sb)

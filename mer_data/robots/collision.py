@@ -8,8 +8,9 @@ links has a shape gets **fitted capsules**, one along each segment to a child no
 the segment's length), so every body collides. Curved primitives become polytopes that
 circumscribe them (12 sides; 42-vertex spheres).
 
-Self-penetration is checked between shapes of bodies that are neither the same node nor parent
-and child, and that do not already overlap at the zero pose (a robot's own rest contacts: hip
+Self-penetration is checked between shapes of bodies that are neither the same body nor parent
+and child (nodes that meet at one joint centre, a hip's yaw, roll and pitch, are one body), and
+that do not already overlap at the zero pose (a robot's own rest contacts: hip
 links nested in the pelvis, say), the way a collision matrix is usually built.
 """
 
@@ -187,6 +188,21 @@ def _feet(skel: Skeleton) -> dict[int, int]:
     return out
 
 
+JOINT_CENTRE_M = 0.01  # nodes closer than this to their parent share its joint centre
+
+
+def _bodies(skel: Skeleton) -> np.ndarray:
+    """(J,) the first node of each chain of nodes that meet at one point (a compound joint: a hip's
+    yaw, roll and pitch axes crossing): such a chain moves as one ball joint, and its links are
+    one body for the collision check."""
+    out = np.arange(len(skel.parents))
+    for j in range(1, len(skel.parents)):
+        p = int(skel.parents[j])
+        if p >= 0 and np.linalg.norm(skel.offsets[j]) < JOINT_CENTRE_M:
+            out[j] = out[p]
+    return out
+
+
 def build_collision_model(
     skel: Skeleton,
     link_to_node: Mapping[str, int],
@@ -232,8 +248,10 @@ def build_collision_model(
     parents = skel.parents
     feet = _feet(skel)
     foot = np.array([feet.get(int(n), 0) for n in node], np.int64)
+    body = _bodies(skel)  # nodes joined at one joint centre (a hip's yaw, roll and pitch) are one body
+    bp = {int(b): int(body[parents[b]]) if parents[b] >= 0 else -1 for b in set(body.tolist())}
     cand = [(a, b) for a in range(len(node)) for b in range(a + 1, len(node))
-            if node[a] != node[b] and parents[node[a]] != node[b] and parents[node[b]] != node[a]]  # fmt: skip
+            if body[node[a]] != body[node[b]] and bp[body[node[a]]] != body[node[b]] and bp[body[node[b]]] != body[node[a]]]  # fmt: skip
     model = CollisionModel(
         skel.name, skel.fingerprint, node, tuple(links), tuple(sources), _pad(verts), _pad(pts), _pad(planes),
         np.array(centers), np.array(radii), np.array(cand, np.int64).reshape(-1, 2), foot,

@@ -14,7 +14,7 @@ Per motion (docs/model.md §Evaluation), on the robot's collision polytopes
   (:func:`mer_data.motion.contacts.foot_contacts`) where no body of the target is within 5 cm of
   the floor.
 * **self-penetration**: ``selfpen_frames`` / ``selfpen_1cm_frames`` the share of frames in which
-  two checked bodies (not the same, not parent and child, not touching at the zero pose)
+  two checked bodies (not the same body, not parent and child, not touching at the zero pose)
   interpenetrate by more than 1 mm / 1 cm; ``selfpen_depth_max`` [m]; ``selfpen_worst`` the pairs
   deeper than 1 cm most often.
 * **joint speed**: ``speed_frames`` the share of frame pairs in which some joint turns faster than

@@ -34,7 +34,7 @@ from typing import Any
 
 import torch
 
-from mer_data.kinematics.collision import pair_contacts, shape_points
+from mer_data.kinematics.collision import contact_points, pair_contacts, shape_points
 
 __all__ = ["PhysicsConfig", "PhysicsInputs", "Physics"]
 
@@ -106,6 +106,7 @@ class PhysicsInputs:
         return Physics(self.cfg, w_kp, self.model, contacts, problem.fold, ancestors(g.parents), g.axes.to(problem.dtype), self.fps)
 
 
+SELF_REACH_M = 0.05  # pairs further apart than this at a solve's first iterate are not looked at in it
 FLOOR_VERTICES = 4  # per shape, the lowest this many vertices are held above the floor
 
 
@@ -151,6 +152,11 @@ class Physics:
     def __init__(self, cfg: PhysicsConfig, w_kp: float, model: Any, contacts: torch.Tensor | None, fold: torch.Tensor,
                  anc: torch.Tensor, axes: torch.Tensor, fps: float = 30.0) -> None:  # fmt: skip
         self.cfg, self.model, self.fps, self.w_kp = cfg, model, fps, w_kp
+        self._near_pairs: torch.Tensor | None = None
+        self.feet_on = any(getattr(cfg, k) > 0 for k in ("w_stance", "w_flat", "w_anchor", "w_swing"))
+        self.verts = torch.as_tensor(model.vertices, dtype=fold.dtype, device=fold.device)
+        self.center = torch.as_tensor(model.center, dtype=fold.dtype, device=fold.device)
+        self.radius = torch.as_tensor(model.radius, dtype=fold.dtype, device=fold.device)
         dtype, dev = fold.dtype, fold.device
         J = anc.shape[-1]
         self.moves = (anc | torch.eye(J, dtype=torch.bool, device=dev)).to(dtype)  # [b, k, j]: j moves a point on k
@@ -170,6 +176,18 @@ class Physics:
     def freeze(self, pos: torch.Tensor, rot: torch.Tensor, qd: torch.Tensor) -> dict:
         """What the coupled terms hold fixed in an iteration: the stance anchors."""
         state: dict = {}
+        if self.cfg.w_self > 0:
+            if self._near_pairs is None:  # the pairs within reach anywhere in the batch at the first iterate
+                from mer_data.kinematics.collision import pair_depths
+
+                with torch.no_grad():
+                    d = pair_depths(self.model, pos, rot, margin=self.cfg.self_margin + SELF_REACH_M)
+                near = (d > -(self.cfg.self_margin + SELF_REACH_M)).flatten(0, -2).any(0)
+                self._near_pairs = torch.as_tensor(self.model.pairs, device=pos.device)[near]
+            state["pairs"] = self._near_pairs
+            found = pair_contacts(self.model, pos, rot, margin=self.cfg.self_margin, top=self.cfg.max_contacts,
+                                  pairs=self._near_pairs) if len(self._near_pairs) else None  # fmt: skip
+            state["self"] = None if found is None else found[0]  # the (frame, pair) entries of this iteration
         if self.contacts is not None:
             state["anchor"] = [_anchor(pos[:, :, n, :2], self.contacts[..., i]) if n >= 0 else None
                                for i, n in enumerate(self.foot_node)]  # fmt: skip
@@ -181,17 +199,21 @@ class Physics:
         B, T = pos.shape[:2]
         dev, dtype = pos.device, pos.dtype
         c = self.cfg
-        verts = shape_points(self.model, pos, rot, "vertices")  # (B, T, S, V, 3)
-        low_z, low_v = verts[..., 2].min(-1)  # (B, T, S)
-        S = low_z.shape[-1]
-        low_p = torch.gather(verts, 3, low_v[..., None, None].expand(B, T, S, 1, 3))[..., 0, :]  # (B, T, S, 3)
+        S = self.node.shape[0]
+        k = min(FLOOR_VERTICES, self.verts.shape[1])
         nodes, points, dirs, res, jws = [], [], [], [], []
         ez = torch.tensor([0.0, 0.0, 1.0], dtype=dtype, device=dev)
-        # floor: the FLOOR_VERTICES lowest vertices of every shape (one alone would let a step tip the shape
-        # onto another corner)
-        k = min(FLOOR_VERTICES, verts.shape[3])
-        kz, kv = verts[..., 2].topk(k, dim=-1, largest=False)  # (B, T, S, k)
-        kp = torch.gather(verts, 3, kv[..., None].expand(B, T, S, k, 3))
+        # floor: the FLOOR_VERTICES lowest vertices of every shape whose bounding sphere reaches the floor (one
+        # vertex alone would let a step tip the shape onto another corner)
+        centre = torch.einsum("btsij,sj->btsi", rot[:, :, self.node], self.center) + pos[:, :, self.node]
+        bi, ti, si = (centre[..., 2] - self.radius < 0).nonzero(as_tuple=True)
+        kz = pos.new_zeros(B, T, S, k)
+        kp = pos.new_zeros(B, T, S, k, 3)
+        if len(bi):
+            v = torch.einsum("eij,evj->evi", rot[bi, ti, self.node[si]], self.verts[si]) + pos[bi, ti, self.node[si]][:, None]
+            z, vi = v[..., 2].topk(k, dim=-1, largest=False)
+            kz[bi, ti, si] = z
+            kp[bi, ti, si] = torch.gather(v, 1, vi[..., None].expand(-1, k, 3))
         nodes.append(self.node[:, None].expand(S, k).expand(B, T, S, k).reshape(B, T, S * k))
         points.append(kp.reshape(B, T, S * k, 3))
         dirs.append(ez.expand(B, T, S * k, 3))
@@ -199,7 +221,10 @@ class Physics:
         res.append(self.sw["w_floor"] * kz.clamp_max(0))
         jws.append(self.sw["w_floor"] * (kz < 0).to(dtype))
         col_nodes, col_dirs, col_res, col_w = [], [], [], []
-        if self.contacts is not None:
+        if self.contacts is not None and self.feet_on:
+            verts = shape_points(self.model, pos, rot, "vertices")  # (B, T, S, V, 3)
+            low_z, low_v = verts[..., 2].min(-1)  # (B, T, S)
+            low_p = torch.gather(verts, 3, low_v[..., None, None].expand(B, T, S, 1, 3))[..., 0, :]  # (B, T, S, 3)
             for i, f in enumerate(self.feet):
                 if not len(f):
                     continue
@@ -227,7 +252,8 @@ class Physics:
                     col_res.append(self.sw["w_flat"] * rot[:, :, n, axis, 2] * down)  # the foot's z axis, tilted
                     col_w.append(self.sw["w_flat"] * down)
         # self-penetration: the deepest points
-        ca = pair_contacts(self.model, pos, rot, margin=c.self_margin, top=c.max_contacts) if c.w_self > 0 else None
+        entries = state.get("self")  # the contacts found at this iteration's start, measured at this pose
+        ca = contact_points(self.model, pos, rot, entries, c.max_contacts) if c.w_self > 0 and entries is not None else None
         if ca is not None:
             depth, pt, normal, na, nb = ca  # (B, T, K) ...
             active = (depth > -c.self_margin).to(dtype)
