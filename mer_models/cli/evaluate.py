@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from .retarget import check_refine
+from .retarget import check_refine, physics_option
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -38,6 +38,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="how the reference is scaled to each target: per segment (default) or the paper's per body part")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--device", default="cpu")
+    p.add_argument("--physics", action="store_true",
+                   help="the optimiser (methods optimize and refine) with its physical terms, as mer retarget --physics")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.add_argument("--save", help="also write the JSON report to this file")
     p.set_defaults(func=cmd_evaluate)
@@ -53,6 +55,7 @@ def cmd_evaluate(args) -> int:
     methods = tuple(args.methods or (("model", "optimize") if ckpt is not None else ("optimize",)))
     opts = EvalOptions(split=args.split, stride=args.stride, max_windows=args.max_windows, methods=methods,
                        steps=args.steps, guidance=args.guidance, init_noise=args.init_noise, batch_size=args.batch_size, seed=args.seed, scaling=args.scaling, refine=args.refine, bf16=args.bf16,
+                       physics=physics_option(args),
                        **{k: v for k, v in {"opt_iters": args.opt_iters, "opt_gn_iters": args.opt_gn_iters}.items() if v is not None})  # fmt: skip
     report = evaluate(args.input, args.source, args.targets, checkpoint=ckpt, opts=opts,
                       progress=lambda s: print(s, file=sys.stderr))  # fmt: skip

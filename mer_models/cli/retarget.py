@@ -67,7 +67,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_retarget)
 
 
-def _physics(args):
+def physics_option(args):
     """The optimiser's physical terms when ``--physics`` is given (their default weights), else None."""
     if not args.physics:
         return None
@@ -106,7 +106,7 @@ def cmd_retarget(args) -> int:
         args.input, args.source, args.target, out_csv=args.output, npz=args.npz, mcap=args.mcap, plot=args.plot,
         video=args.video, video_fps=args.video_fps,
         model=model, method=args.method, input_fps=args.fps, device=args.device, npz_fps=args.npz_fps, npz_order=args.npz_order,
-        physics=_physics(args), **kw,
+        physics=physics_option(args), **kw,
     )  # fmt: skip
     m = res.motion
     print(f"{args.source} -> {args.target} ({res.method}): {m.num_frames} frames at {m.fps:g} Hz", file=sys.stderr)
@@ -164,7 +164,7 @@ def _dataset(args) -> int:
         summary = retarget_dataset(
             args.input_dir, args.source, args.targets, args.out, method=method, checkpoint=checkpoint,
             formats=args.formats, shard_index=args.shard_index, num_shards=args.num_shards, input_fps=args.fps, npz_fps=args.npz_fps,
-            device=args.device, progress=progress, physics=_physics(args), **kw,
+            device=args.device, progress=progress, physics=physics_option(args), **kw,
         )  # fmt: skip
     finally:
         if bar is not None:

@@ -12,6 +12,7 @@ is the target's ground truth for the ``gt_*`` metrics. Metrics: :mod:`mer_models
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass
@@ -60,6 +61,8 @@ class EvalOptions:
         refine: Levenberg-Marquardt iterations of the ``refine`` method.
         bf16: the model's network under bfloat16 autocast (:mod:`mer_models.diffusion.precision`).
         artifacts: also the artifact metrics of every window (:mod:`mer_models.retarget.artifacts`).
+        physics: the optimiser's physical terms (``optimize`` and ``refine``;
+            :class:`~mer_models.solver.physics.PhysicsConfig`), None: without.
     """
 
     split: str = "paper"
@@ -78,6 +81,7 @@ class EvalOptions:
     refine: int = 5
     bf16: bool = False
     artifacts: bool = True
+    physics: object = None
 
 
 def _clip_files(folder: Path) -> dict[str, Path]:
@@ -215,7 +219,8 @@ def evaluate(
     rows = []
     for target in targets:
         tgt = tgt_robots[target].skeleton
-        geometry = collision_model(tgt_robots[target]) if opts.artifacts else None
+        geometry = collision_model(tgt_robots[target]) if opts.artifacts or opts.physics is not None else None
+        phys_kw = {"physics": opts.physics, "geometry": geometry, "ref_skeleton": ref} if opts.physics is not None else {}
         eta = joint_map(tgt, ref)
         for dom in DOMAINS:
             w = windows[dom]
@@ -240,13 +245,13 @@ def evaluate(
                         motion = sample_batch(checkpoint.model, batch, sampler, energy=model_energy, steps=opts.steps, generator=gen,
                                               bf16=opts.bf16)  # fmt: skip
                         if method == "refine":
-                            motion = optimize_batch(opt_energy, batch, gn_iters=opts.refine, init=motion)
+                            motion = optimize_batch(opt_energy, batch, gn_iters=opts.refine, init=motion, **phys_kw)
                     else:
-                        motion = optimize_batch(opt_energy, batch, iters=opts.opt_iters, gn_iters=opts.opt_gn_iters)
+                        motion = optimize_batch(opt_energy, batch, iters=opts.opt_iters, gn_iters=opts.opt_gn_iters, **phys_kw)
                     sec += time.time() - t0
                     for k, v in window_metrics(motion, batch, keypoints={"base": 0, **tgt.keypoints}, joints=_joints(tgt)).items():
                         vals.setdefault(k, []).append(v)
-                    if geometry is not None:
+                    if geometry is not None and opts.artifacts:
                         for k, v in _window_artifacts(motion, batch, tgt, ref, geometry, w[a : a + opts.batch_size]).items():
                             vals.setdefault(k, []).append(v)
                 summary = summarize({k: np.concatenate(v) for k, v in vals.items()})
@@ -259,7 +264,8 @@ def evaluate(
         "source": source,
         "targets": list(targets),
         "model": str(checkpoint.path) if checkpoint is not None else None,
-        "options": {**opts.__dict__, "methods": list(methods)},
+        "options": {**opts.__dict__, "methods": list(methods),
+                    "physics": None if opts.physics is None else dataclasses.asdict(opts.physics)},  # fmt: skip
         "rows": rows,
     }
 

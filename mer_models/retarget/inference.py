@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from typing import Callable, Mapping
 
+import numpy as np
 import torch
 
 from mer_data.kinematics.rotations import axis_angle_to_matrix
@@ -110,13 +111,19 @@ def optimize_batch(
     init: Mapping[str, torch.Tensor] | None = None,
     smooth: float = DEFAULT_SMOOTH,
     fine: str = DEFAULT_FINE,
+    physics=None,
+    geometry=None,
+    ref_skeleton=None,
 ) -> dict[str, torch.Tensor]:
     """The optimiser on a collated batch, in the batch's frame (no model needed).
 
     ``init`` warm-starts it (``q``, ``base_pos``, ``base_rot``: e.g. a model's output to refine;
     ``gn_iters`` iterations on whole windows, :func:`mer_models.solver.ik.coupled_lm_ik`); ``smooth``:
     the weight of its temporal prior; ``fine``: the solver of its fine stage without ``init``
-    (:data:`mer_models.solver.optimize.DEFAULT_FINE`).
+    (:data:`mer_models.solver.optimize.DEFAULT_FINE`). ``physics``: a
+    :class:`~mer_models.solver.physics.PhysicsConfig` for a batch of one target robot, whose
+    collision model is ``geometry``, every sample's reference of ``ref_skeleton`` (the source's
+    foot contacts are read from the batch's reference features).
     """
     g = graph_from_batch(batch, "tgt", device)
     goal = batch["ref_scaled_pos"].to(device, torch.float32)
@@ -124,7 +131,18 @@ def optimize_batch(
     rkw = {}
     if "ref_goal_rot" in batch:
         rkw = {"goal_rot": batch["ref_goal_rot"].to(device, torch.float32), "rot_mask": batch["ref_rot_mask"].to(device)}
+    phys = None
+    if physics is not None:
+        from mer_data.motion.contacts import foot_contacts, sole_points
+        from mer_data.motion.features import split_features
+        from mer_models.solver.physics import PhysicsInputs
+
+        pos = split_features(batch["reference"].double())["pos"].numpy()
+        fps = float(batch.get("fps", 30.0)) if not torch.is_tensor(batch.get("fps")) else 30.0
+        contacts = torch.from_numpy(np.stack([foot_contacts(p, ref_skeleton, fps) for p in pos]))
+        sp = sole_points(ref_skeleton)
+        phys = PhysicsInputs(geometry, contacts, fps, physics, (tuple(sp["left"]), tuple(sp["right"])))
     out = optimize_motion(energy, g, batch["joint_map"].to(device, torch.float32), goal, ref_rot, iters=iters, gn_iters=gn_iters,
-                          init=init, smooth=smooth, fine=fine, **rkw)  # fmt: skip
+                          init=init, smooth=smooth, fine=fine, physics=phys, **rkw)  # fmt: skip
     return {"q": out["q"], "base_pos": out["base_pos"], "base_rot": out["base_rot"], "energy": out["energy"]}
 

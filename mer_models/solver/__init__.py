@@ -3,5 +3,7 @@
 * :mod:`.energy` - ``f_kin = L_kp + L_cst + L_vel + L_norm`` (paper, Eq. 5-9) and its goals;
 * :mod:`.ik` - per-frame damped Gauss-Newton (Levenberg-Marquardt) on that energy;
 * :mod:`.optimize` - the whole-trajectory optimiser (``--method optimize``, ``--refine K``, the teacher);
-* :mod:`.limits` - the joint-limit parametrisation the optimiser and the model's output share.
+* :mod:`.limits` - the joint-limit parametrisation the optimiser and the model's output share;
+* :mod:`.tridiagonal` - the block-tridiagonal solve of whole windows;
+* :mod:`.physics` - the physical terms (floor, joint speed, stance feet, self-penetration).
 """

@@ -98,3 +98,27 @@ def test_unitree_h1_walk_matches_the_published_figures(lafan1_dir):
     assert a["floor_frames"] == 0 and a["floor_depth_max"] < 0.01
     assert 0.03 < a["skate_median"] < 0.07
     assert a["selfpen_1cm_frames"] == 0 and a["speed_frames"] == 0
+
+
+def test_evaluate_reports_artifacts_and_takes_physics(tmp_path):
+    """``mer evaluate`` reports the artifact metrics per window, and ``--physics`` reaches its
+    optimiser: a source sunk 6 cm into the floor leaves H1's feet under it without, not with."""
+    import json
+
+    from mer_data.motion.lafan1 import write_lafan1_csv
+    from mer_data.synthesis.walking import walking_motion
+    from mer_models.cli import main
+
+    g1 = load_robot("g1")
+    m = walking_motion("g1", 4.0)
+    write_lafan1_csv(tmp_path / "in" / "g1" / "walk.csv", m.with_arrays(base_pos=m.base_pos - [0.0, 0.0, 0.06]), robot=g1)
+    out = {}
+    for flag in ((), ("--physics",)):
+        f = tmp_path / f"r{len(flag)}.json"
+        assert main(["evaluate", "--input", str(tmp_path / "in"), "--source", "g1", "--targets", "h1", "--split", "all",
+                     "--methods", "optimize", "--max-windows", "2", "--save", str(f), *flag]) == 0  # fmt: skip
+        rows = json.loads(f.read_text())["rows"]
+        out[flag] = rows[0]["metrics"]
+    assert out[()]["floor_frames"]["mean"] > 0.3
+    assert out[("--physics",)]["floor_frames"]["mean"] < out[()]["floor_frames"]["mean"] / 3
+    assert out[("--physics",)]["floor_depth_max"]["mean"] < out[()]["floor_depth_max"]["mean"]

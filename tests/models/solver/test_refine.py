@@ -108,11 +108,11 @@ def test_a_warm_start_solves_whole_windows_and_lands_at_the_optimiser():
 
 
 def test_the_block_tridiagonal_solve_is_the_dense_solve():
-    """:func:`_block_tridiagonal_solve` against ``torch.linalg.solve`` of the assembled system, for
+    """:func:`block_tridiagonal_solve` against ``torch.linalg.solve`` of the assembled system, for
     random SPD blocks and couplings, several window lengths (1 frame included)."""
     import torch
 
-    from mer_models.solver.ik import _block_tridiagonal_solve
+    from mer_models.solver.tridiagonal import block_tridiagonal_solve
 
     gen = torch.Generator().manual_seed(0)
     for T in (1, 2, 3, 7, 31, 100):
@@ -121,7 +121,7 @@ def test_the_block_tridiagonal_solve_is_the_dense_solve():
         a = a @ a.transpose(-1, -2) + 4 * torch.eye(n, dtype=torch.float64)
         c = 0.7 * torch.randn(B, max(T - 1, 0), n, generator=gen, dtype=torch.float64)
         rhs = torch.randn(B, T, n, generator=gen, dtype=torch.float64)
-        x, ok = _block_tridiagonal_solve(a, c, rhs)
+        x, ok = block_tridiagonal_solve(a, c, rhs)
         dense = torch.zeros(B, T * n, T * n, dtype=torch.float64)
         for t in range(T):
             dense[:, t * n : (t + 1) * n, t * n : (t + 1) * n] = a[:, t]
@@ -134,7 +134,7 @@ def test_the_block_tridiagonal_solve_is_the_dense_solve():
         assert ok.all()
         torch.testing.assert_close(x, ref, atol=1e-10, rtol=1e-10)
     a[1, 3] = -torch.eye(n, dtype=torch.float64)  # not positive definite: that sample gets no step
-    x, ok = _block_tridiagonal_solve(a, c, rhs)
+    x, ok = block_tridiagonal_solve(a, c, rhs)
     assert ok.tolist() == [True, False, True] and (x[1] == 0).all() and torch.isfinite(x).all()
 
 
