@@ -4,6 +4,7 @@ Example (``g1``)::
 
     name: g1
     urdf: g1.urdf
+    collision: collision.json        # optional: the links' collision shapes (mer_data.robots.shapes)
     description: Unitree G1, 29 DoF, rev 1.0
     license: BSD-3-Clause
     source: unitreerobotics/unitree_ros robots/g1_description/g1_29dof_rev_1_0.urdf @ d6f13aad

@@ -30,6 +30,11 @@ a step that lowers the frame's cost and grows (the step rejected) otherwise. A s
 cost moved by more than ``tol`` (relative) in an iteration; the loop ends when every sample has.
 Nothing couples samples, so a sample's result does not depend on the rest of the batch (up to
 floating-point rounding of differently padded systems).
+
+With ``physics`` (:mod:`mer_models.solver.physics`) both solvers add the physical terms' rows to
+every frame's system (joint speed, in :func:`coupled_lm_ik` only, to the block-tridiagonal one), and
+in :func:`gauss_newton_ik` a rejected step no longer counts as convergence (one-sided terms often
+reject the first steps): a frame is done after an accepted small step or once its damping reaches 1e3.
 """
 
 from __future__ import annotations

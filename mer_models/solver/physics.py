@@ -194,8 +194,8 @@ class Physics:
         return state
 
     # ---- rows ----------------------------------------------------------------------------------------------
-    def _rows(self, pos: torch.Tensor, rot: torch.Tensor, state: dict, with_jacobian: bool):
-        """Point rows (node, point, direction, weighted residual) and column rows (flat feet)."""
+    def _rows(self, pos: torch.Tensor, rot: torch.Tensor, state: dict):
+        """Point rows (node, point, direction, weighted residual, Jacobian weight) and column rows (flat feet)."""
         B, T = pos.shape[:2]
         dev, dtype = pos.device, pos.dtype
         c = self.cfg
@@ -267,7 +267,7 @@ class Physics:
 
     def cost(self, pos: torch.Tensor, rot: torch.Tensor, qd: torch.Tensor, state: dict) -> torch.Tensor:
         """(B, T) the terms' cost at a pose (the neighbours and anchors of ``state``)."""
-        _, _, _, res, _, (_, _, col_res, _) = self._rows(pos, rot, state, False)
+        _, _, _, res, _, (_, _, col_res, _) = self._rows(pos, rot, state)
         out = sum((r**2).sum(-1) for r in res)
         for r in col_res:
             out = out + r**2
@@ -276,7 +276,7 @@ class Physics:
     def linearise(self, pos: torch.Tensor, rot: torch.Tensor, qd: torch.Tensor, state: dict) -> tuple[torch.Tensor, torch.Tensor]:
         """The terms' Gauss-Newton normal equations: ``J^T J`` (B, T, n, n) and ``J^T r`` (B, T, n)."""
         B, T, J = pos.shape[:3]
-        nodes, points, dirs, res, jws, (col_nodes, col_dirs, col_res, col_w) = self._rows(pos, rot, state, True)
+        nodes, points, dirs, res, jws, (col_nodes, col_dirs, col_res, col_w) = self._rows(pos, rot, state)
         axes_w = (rot @ self.axes[:, None, :, :, None]).squeeze(-1)  # (B, T, J, 3)
         D = self.fold.shape[-1]
         n_cols = D + 6
