@@ -9,7 +9,8 @@ batched over leading dimensions, differentiable.
 measured to B's nearest face (``-max_f (n_f . p + d_f)``); a pair's depth is the larger of A-in-B
 and B-in-A. Positive: interpenetrating by that much [m]; negative: apart, by at least that much
 (pairs far apart are not computed exactly: the gap between their bounding spheres, else between
-their world-axis-aligned boxes, else the polyhedral distance of the nearest sample point).
+their world-axis-aligned boxes, else across a face plane of either that has all of the other's
+vertices outside, else the polyhedral distance of the nearest sample point).
 """
 
 from __future__ import annotations
