@@ -1,18 +1,17 @@
 """Maintainer script: derive compact collision geometry for the built-in robots from upstream meshes.
 
 For every ``<link>`` of ``mer_data/robots/builtin/<name>/<name>.urdf`` that has ``<collision>``
-elements, each element becomes one shape of ``collision.json`` beside the URDF (the format read by
-:mod:`mer_data.robots.collision`):
+elements (as :func:`mer_data.robots.urdf.load_urdf` reads them), each element becomes one shape of
+``collision.json`` beside the URDF, written by :func:`mer_data.robots.shapes.dump_collision`:
 
 * ``box`` / ``sphere`` / ``cylinder``: kept as in the URDF, with the collision ``<origin>``;
 * ``mesh`` (STL, DAE, OBJ): read from the upstream repository, scaled by ``<mesh scale>``, moved by the
   collision ``<origin>`` into the LINK frame, and replaced by its convex hull, simplified to at most
-  ``--max-vertices`` (48) vertices by an inner approximation: seeded with the extreme hull vertices along
-  +-x, +-y, +-z, then greedy farthest-point selection (the original hull vertex farthest from the hull of
-  those chosen so far is added next), stopping at the vertex budget or once every original hull vertex
-  lies within ``--tol-mm`` of the simplified hull. Coordinates are rounded to 10 um (5 decimals); the
-  error reported (and written into ``source``) is the largest distance from an original hull vertex to
-  the simplified, rounded hull.
+  ``--max-vertices`` (48) vertices by :func:`mer_data.robots.hulls.simplify_hull` (the same inner
+  approximation registration uses), stopping early once every original hull vertex lies within
+  ``--tol-mm`` of the simplified hull. Coordinates are rounded to 10 um (5 decimals); the error
+  reported (and written into ``source``) is the largest distance from an original hull vertex to the
+  simplified, rounded hull.
 
 A mesh that cannot be found or read upstream puts its link under ``missing``; the build carries on.
 The URDFs hold kinematics only; the meshes are NOT in this repository. Each upstream is given as a
@@ -37,28 +36,29 @@ or, with mirrors laid out as ``<DIR>/<owner>+<name>/repo`` (or ``<DIR>/<owner>+<
     python tools/build_collision.py --mirrors DIR [--robots g1 h1] [--check]
 
 ``--check`` also prints, per robot, the lowest point of all collision geometry at the zero pose (root
-frame, via yourdfpy) and validates each file with :func:`mer_data.robots.collision.parse_collision`.
+frame) and validates each file with :func:`mer_data.robots.shapes.parse_collision`.
 """
 
 from __future__ import annotations
 
 import argparse
 import io
-import json
 import math
 import os
 import re
 import subprocess
-import sys
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from scipy.spatial import QhullError
 
+from mer_data.base.errors import MerError
+from mer_data.robots.builder import zero_pose_link_transforms
+from mer_data.robots.collision import shape_vertices
 from mer_data.robots.hulls import simplify_hull
+from mer_data.robots.shapes import CollisionFile, Shape, dump_collision, parse_collision
+from mer_data.robots.urdf import load_urdf
 
 ROOT = Path(__file__).resolve().parents[1]
 BUILTIN = ROOT / "mer_data" / "robots" / "builtin"
@@ -159,15 +159,6 @@ def resolve_mesh(filename: str, spec: RobotSpec, up: Upstream) -> str | None:
 
 
 # ---- geometry --------------------------------------------------------------------------------------
-def rpy_matrix(rpy: np.ndarray) -> np.ndarray:
-    """URDF fixed-axis roll-pitch-yaw: R = Rz(yaw) Ry(pitch) Rx(roll)."""
-    r, p, y = rpy
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                     [-sp, cp * sr, cp * cr]])  # fmt: skip
-
-
 def mesh_vertices(data: bytes, ext: str) -> np.ndarray:
     """(N, 3) vertices used by the faces of a mesh file (STL, DAE, OBJ), node transforms applied, metres."""
     import trimesh
@@ -196,21 +187,6 @@ def mesh_vertices(data: bytes, ext: str) -> np.ndarray:
 
 
 # ---- URDF -> shapes --------------------------------------------------------------------------------
-def _floats(text: str | None, n: int, default: float = 0.0) -> list[float]:
-    if text is None:
-        return [default] * n
-    vals = [float(x) for x in text.split()]
-    if len(vals) == 1 and n > 1:
-        vals = vals * n
-    if len(vals) != n:
-        raise ValueError(f"expected {n} numbers, got {text!r}")
-    return vals
-
-
-def _clean(v: list[float]) -> list[float]:
-    return [x + 0.0 for x in v]  # no "-0.0"
-
-
 @dataclass
 class LinkReport:
     link: str
@@ -223,7 +199,7 @@ class LinkReport:
 @dataclass
 class RobotResult:
     name: str
-    data: dict[str, Any]
+    data: CollisionFile
     reports: list[LinkReport]
     n_hulls: int = 0
     n_primitives: int = 0
@@ -231,124 +207,74 @@ class RobotResult:
 
 
 def build_robot(name: str, up: Upstream, max_vertices: int, tol: float) -> RobotResult:
-    """The collision.json content of one built-in robot."""
+    """The collision shapes of one built-in robot: its URDF's ``<collision>`` elements as the package
+    reads them (:attr:`mer_data.robots.urdf.UrdfModel.collisions`), meshes read from upstream."""
     spec = ROBOTS[name]
-    urdf = ET.parse(BUILTIN / name / f"{name}.urdf").getroot()
-    links: dict[str, list[dict[str, Any]]] = {}
+    urdf = load_urdf(BUILTIN / name / f"{name}.urdf")
+    links: dict[str, list[Shape]] = {}
     missing: list[str] = []
     reports: list[LinkReport] = []
-    res = RobotResult(name, {}, reports)
-    cache: dict[str, np.ndarray | None] = {}
-    for link in urdf.findall("link"):
-        lname = link.get("name", "")
-        shapes: list[dict[str, Any]] = []
-        for col in link.findall("collision"):
-            origin = col.find("origin")
-            xyz = _floats(origin.get("xyz") if origin is not None else None, 3)
-            rpy = _floats(origin.get("rpy") if origin is not None else None, 3)
-            geom = col.find("geometry")
-            g = geom[0] if geom is not None and len(geom) else None
-            if g is None:
-                continue
-            if g.tag == "box":
-                shapes.append({"type": "box", "size": _clean(_floats(g.get("size"), 3)), "xyz": _clean(xyz), "rpy": _clean(rpy)})
-            elif g.tag == "sphere":
-                shapes.append({"type": "sphere", "radius": float(g.get("radius", "nan")), "xyz": _clean(xyz)})
-            elif g.tag == "cylinder":
-                shapes.append({"type": "cylinder", "radius": float(g.get("radius", "nan")),
-                               "length": float(g.get("length", "nan")), "xyz": _clean(xyz), "rpy": _clean(rpy)})  # fmt: skip
-            elif g.tag == "mesh":
-                filename = g.get("filename", "")
-                rel = resolve_mesh(filename, spec, up)
+    cache: dict[str | None, np.ndarray | None] = {}
+    for lname in urdf.links:
+        shapes: list[Shape] = []
+        for c in urdf.collisions.get(lname, ()):
+            t = np.asarray(c["origin"], np.float64)
+            if c["type"] == "box":
+                shapes.append(Shape("box", t, size=tuple(c["size"])))
+            elif c["type"] == "sphere":
+                shapes.append(Shape("sphere", t, radius=c["radius"]))
+            elif c["type"] == "cylinder":
+                shapes.append(Shape("cylinder", t, radius=c["radius"], length=c["length"]))
+            else:
+                rel = resolve_mesh(c["filename"], spec, up)
                 if rel not in cache:
                     cache[rel] = None
                     data = up.read(rel) if rel else None
-                    if data is not None:
+                    if data is None:
+                        print(f"    {lname}: mesh {c['filename']} not found upstream")
+                    else:
                         try:
                             cache[rel] = mesh_vertices(data, Path(rel).suffix.lower().lstrip("."))
                         except Exception as exc:  # noqa: BLE001 - any unreadable mesh is reported, not fatal
                             print(f"    {lname}: cannot read {rel}: {exc}")
                 verts = cache[rel]
+                if verts is not None:
+                    pts = (verts * np.asarray(c["scale"])) @ t[:3, :3].T + t[:3, 3]
+                    try:
+                        hull, err, n_full = simplify_hull(pts, max_vertices, tol)
+                    except (QhullError, ValueError) as exc:
+                        print(f"    {lname}: {rel} has no 3-D convex hull ({str(exc).splitlines()[0]})")
+                        verts = None
                 if verts is None:
-                    if rel is None or up.read(rel) is None:
-                        print(f"    {lname}: mesh {filename} not found upstream")
                     if lname not in missing:
                         missing.append(lname)
                     continue
-                scale = np.array(_floats(g.get("scale"), 3, 1.0))
-                pts = (verts * scale) @ rpy_matrix(np.array(rpy)).T + np.array(xyz)
-                try:
-                    hull, err, n_full = simplify_hull(pts, max_vertices, tol)
-                except (QhullError, ValueError) as exc:
-                    print(f"    {lname}: {rel} has no 3-D convex hull ({str(exc).splitlines()[0]})")
-                    if lname not in missing:
-                        missing.append(lname)
-                    continue
-                reports.append(LinkReport(lname, rel or filename, n_full, len(hull), err))
-                shapes.append({"type": "hull", "vertices": hull.tolist()})
-            else:
-                print(f"    {lname}: unknown geometry <{g.tag}> skipped")
+                reports.append(LinkReport(lname, rel or c["filename"], n_full, len(hull), err))
+                shapes.append(Shape("hull", np.eye(4), vertices=hull, source="mesh"))
         if shapes:
             links[lname] = shapes
-            res.n_hulls += sum(s["type"] == "hull" for s in shapes)
-            res.n_primitives += sum(s["type"] != "hull" for s in shapes)
     if reports:
         worst = max(reports, key=lambda r: r.error_m)
         how = (f"meshes as convex hulls of at most {max_vertices} vertices (inner approximation, worst error "
                f"{worst.error_m * 1000:.2f} mm on link {worst.link})")  # fmt: skip
     else:
         how = "no meshes among the URDF's collision elements"
-    res.data = {
-        "format": "mer-collision",
-        "format_version": 1,
-        "robot": name,
-        "source": f"{spec.repo}@{up.commit} {spec.mesh_dir}; {how}; primitives as in the URDF",
-        "links": links,
-        "missing": missing,
-    }
-    res.text = dump(res.data)
-    return res
-
-
-def dump(data: dict[str, Any]) -> str:
-    """JSON text, one shape per line (the layout of mer_data.robots.collision.dump_collision)."""
-    c = dict(separators=(", ", ": "), ensure_ascii=False)
-    lines = [f'{{"format": {json.dumps(data["format"])}, "format_version": {data["format_version"]}, '
-             f'"robot": {json.dumps(data["robot"], **c)},',
-             f' "source": {json.dumps(data["source"], **c)},', ' "links": {']  # fmt: skip
-    items = list(data["links"].items())
-    for i, (link, shapes) in enumerate(items):
-        body = ",\n   ".join(json.dumps(s, separators=(",", ":"), ensure_ascii=False) for s in shapes)
-        lines.append(f"  {json.dumps(link, **c)}: [\n   {body}]" + ("," if i < len(items) - 1 else ""))
-    lines.append(" },")
-    lines.append(f' "missing": {json.dumps(data["missing"], **c)}}}')
-    return "\n".join(lines) + "\n"
+    cf = CollisionFile(name, {k: tuple(v) for k, v in links.items()}, f"{spec.repo}@{up.commit} {spec.mesh_dir}; {how}; primitives as in the URDF",
+                       tuple(missing))  # fmt: skip
+    n_hulls = sum(s.type == "hull" for v in links.values() for s in v)
+    return RobotResult(name, cf, reports, n_hulls, sum(len(v) for v in links.values()) - n_hulls, dump_collision(cf))
 
 
 # ---- checks ----------------------------------------------------------------------------------------
-def lowest_point(name: str, data: dict[str, Any]) -> tuple[float, str]:
-    """Lowest z [m] of all collision geometry at the zero pose, in the root frame, and its link."""
-    import yourdfpy
-
-    robot = yourdfpy.URDF.load(str(BUILTIN / name / f"{name}.urdf"), load_meshes=False, build_scene_graph=True,
-                               load_collision_meshes=False)  # fmt: skip
+def lowest_point(name: str, cf: CollisionFile) -> tuple[float, str]:
+    """Lowest z [m] of all collision geometry at the zero pose, in the root frame, and its link (the
+    polytopes the metrics use: curved primitives circumscribed)."""
+    t_root = zero_pose_link_transforms(load_urdf(BUILTIN / name / f"{name}.urdf"))
     best = (math.inf, "")
-    for lname, shapes in data["links"].items():
-        t = robot.get_transform(lname)
-        rot, pos = t[:3, :3], t[:3, 3]
-        for s in shapes:
-            if s["type"] == "hull":
-                z = float((np.array(s["vertices"]) @ rot.T + pos)[:, 2].min())
-            else:
-                r = rot @ rpy_matrix(np.array(s.get("rpy", [0, 0, 0])))
-                c = rot @ np.array(s["xyz"]) + pos
-                if s["type"] == "sphere":
-                    z = c[2] - s["radius"]
-                elif s["type"] == "box":
-                    z = c[2] - 0.5 * float(np.abs(r[2]) @ np.array(s["size"]))
-                else:  # cylinder along its z axis
-                    az = abs(r[2, 2])
-                    z = c[2] - 0.5 * s["length"] * az - s["radius"] * math.sqrt(max(0.0, 1 - az * az))
+    for lname, shapes in cf.links.items():
+        t = t_root[lname]
+        for sh in shapes:
+            z = float((shape_vertices(sh) @ t[:3, :3].T + t[:3, 3])[:, 2].min())
             if z < best[0]:
                 best = (z, lname)
     return best
@@ -356,14 +282,9 @@ def lowest_point(name: str, data: dict[str, Any]) -> tuple[float, str]:
 
 def validate(text: str, path: str) -> str:
     """Parse ``text`` with the project's reader; '' if it reads, else the error."""
-    sys.path.insert(0, str(ROOT))
-    try:
-        from mer_data.robots.shapes import parse_collision
-    except Exception as exc:  # noqa: BLE001 - the reader needs torch; say so rather than fail the build
-        return f"(not validated: {exc})"
     try:
         parse_collision(text, path)
-    except Exception as exc:  # noqa: BLE001
+    except MerError as exc:
         return str(exc)
     return ""
 
@@ -435,8 +356,8 @@ def main(argv: list[str] | None = None) -> int:
         worst = max(res.reports, key=lambda r: r.error_m, default=None)
         for r in sorted(res.reports, key=lambda r: -r.error_m)[:3]:
             print(f"    error {r.error_m * 1000:6.2f} mm  {r.link:32s} {r.kept:3d}/{r.hull_vertices:4d} hull vertices  {r.file}")
-        line = (f"  {name:9s} links {len(res.data['links']):3d}  hulls {res.n_hulls:3d}  primitives {res.n_primitives:3d}  "
-                f"missing {len(res.data['missing']):2d}  worst {worst.error_m * 1000 if worst else 0:5.2f} mm "
+        line = (f"  {name:9s} links {len(res.data.links):3d}  hulls {res.n_hulls:3d}  primitives {res.n_primitives:3d}  "
+                f"missing {len(res.data.missing):2d}  worst {worst.error_m * 1000 if worst else 0:5.2f} mm "
                 f"({worst.link if worst else '-'})  {size / 1024:6.1f} KiB")  # fmt: skip
         if args.check:
             z, link = lowest_point(name, res.data)

@@ -208,7 +208,7 @@ def dump_collision(cf: CollisionFile) -> str:
              f' "source": {json.dumps(cf.source)},', ' "links": {']  # fmt: skip
     items = list(cf.links.items())
     for i, (link, shapes) in enumerate(items):
-        body = ",\n   ".join(json.dumps(shape(s)) for s in shapes)
+        body = ",\n   ".join(json.dumps(shape(s), separators=(",", ":")) for s in shapes)
         lines.append(f"  {json.dumps(link)}: [\n   {body}]" + ("," if i < len(items) - 1 else ""))
     lines.append(" },")
     lines.append(f' "missing": {json.dumps(list(cf.missing))}}}')

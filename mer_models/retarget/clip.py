@@ -103,31 +103,36 @@ def _reference_points(scaled: np.ndarray, shift: np.ndarray, eta: np.ndarray) ->
     return scaled[:, pairs] + shift
 
 
-def physics_inputs(feats: np.ndarray, ref: Skeleton, target: Skeleton, fps: float, cfg, geometry=None):
-    """:class:`~mer_models.solver.physics.PhysicsInputs` of one motion: the target's collision
-    model (``geometry``, else the registered robot of that name if its skeleton is this one, else
-    None: no physical terms), the source's foot contacts from its features (N, Jr, 9)."""
+def geometry_of(target: Skeleton):
+    """The collision model of the registered robot whose skeleton ``target`` is (a library caller
+    that passed a skeleton, not a robot), or None: an augmented or edited skeleton has none."""
+    from mer_data.robots.collision import collision_model
+
+    try:
+        robot = as_robot(target.name)
+    except MerError:
+        return None
+    return collision_model(robot) if robot.skeleton.fingerprint == target.fingerprint else None
+
+
+def physics_inputs(feats: np.ndarray, ref: Skeleton, geometry, fps: float, cfg, contacts: torch.Tensor | None = None):
+    """:class:`~mer_models.solver.physics.PhysicsInputs` of one motion for a target whose collision
+    model is ``geometry``: the source's foot contacts from its features (N, Jr, 9), unless given
+    (``contacts`` (1, N, 2))."""
     from mer_data.motion.contacts import foot_contacts, sole_points
     from mer_data.motion.features import split_features
-    from mer_data.robots.collision import collision_model
     from mer_models.solver.physics import PhysicsInputs
 
-    if geometry is None:
-        try:
-            robot = as_robot(target.name)
-        except MerError:
-            return None
-        if robot.skeleton.fingerprint != target.fingerprint:
-            return None  # an augmented or edited skeleton: no registered geometry fits it
-        geometry = collision_model(robot)
-    pos = split_features(torch.from_numpy(np.asarray(feats, np.float64)))["pos"].numpy()
-    contacts = torch.from_numpy(foot_contacts(pos, ref, fps))[None]
+    if contacts is None:
+        pos = split_features(torch.from_numpy(np.asarray(feats, np.float64)))["pos"].numpy()
+        contacts = torch.from_numpy(foot_contacts(pos, ref, fps))[None]
     sp = sole_points(ref)
     return PhysicsInputs(geometry, contacts, fps, cfg, (tuple(sp["left"]), tuple(sp["right"])))
 
 
 def _optimize_sequence(feats, scaled, rot_goals, ref: Skeleton, target: Skeleton, eta, energy: EnergyConfig, fps, iters, gn_iters, device,
                        smooth: float = DEFAULT_SMOOTH, init: dict | None = None, physics=None):
+    """The optimiser on one whole motion; ``physics``: its :class:`~mer_models.solver.physics.PhysicsInputs`."""
     from mer_data.motion.samples import TrainingSample, collate
 
     batch = collate([TrainingSample(feats[:3].astype(np.float32), ref, target, eta)])
@@ -140,9 +145,8 @@ def _optimize_sequence(feats, scaled, rot_goals, ref: Skeleton, target: Skeleton
     warm = None
     if init is not None:
         warm = {k: torch.from_numpy(np.asarray(init[k])).float()[None].to(device) for k in ("q", "base_pos", "base_rot")}
-    phys = physics_inputs(feats, ref, target, fps, physics) if physics is not None else None
     out = optimize_motion(energy, g, eta_t, goal, rot, iters=iters, gn_iters=gn_iters, fps=fps, goal_rot=goal_rot, rot_mask=rot_mask,
-                        smooth=smooth, init=warm, physics=phys)
+                        smooth=smooth, init=warm, physics=physics)
     return {k: out[k][0].double().cpu().numpy() for k in ("q", "base_pos", "base_rot")}
 
 
@@ -179,6 +183,7 @@ def retarget_features_many(
     progress: Callable[[int, int], None] | None = None,
     bf16: bool = False,
     physics=None,
+    geometry=None,
 ) -> list[RetargetResult]:
     """Retarget source features (F, Jr, 9) (world frame, at ``fps``) to every robot of ``targets``.
 
@@ -194,7 +199,8 @@ def retarget_features_many(
     (diffusion only; about twice as fast on CPUs with AMX, :mod:`mer_models.diffusion.precision`).
     ``physics``: a :class:`~mer_models.solver.physics.PhysicsConfig`: the optimiser (and ``refine``)
     also minimises its physical terms (:mod:`mer_models.solver.physics`; by default: every body
-    above the floor); None (the default): key points and orientations only.
+    above the floor and joints within their speed limits); None (the default): key points and
+    orientations only. ``geometry``: each target's collision model (default: the registered robot's).
 
     Returns:
         One result per target, in the order of ``targets``.
@@ -211,6 +217,11 @@ def retarget_features_many(
     _check_finite(reference)
     etas = [joint_map(t, ref) for t in tgts]
     prepared = [prepare_reference(reference, ref, t) for t in tgts]
+    phys: list = [None] * len(tgts)
+    if physics is not None:  # the source's contacts once; each target's geometry as given, else its registered robot's
+        geos = list(geometry) if geometry is not None else [geometry_of(t) for t in tgts]
+        first = physics_inputs(prepared[0][0], ref, geos[0], fps, physics)
+        phys = [None if g is None else physics_inputs(None, ref, g, fps, physics, first.contacts) for g in geos]
     outs: list[dict[str, np.ndarray]]
     labels = [method] * len(tgts)
     if method == "diffusion":
@@ -231,16 +242,16 @@ def retarget_features_many(
             for i, (t, eta, (feats, scaled, shift, rot_goals)) in enumerate(zip(tgts, etas, prepared)):
                 init = {"q": outs[i]["q"], "base_pos": np.asarray(outs[i]["base_pos"]) - shift, "base_rot": outs[i]["base_rot"]}
                 out = _optimize_sequence(feats, scaled, rot_goals, ref, t, eta, energy or EnergyConfig(), fps, 0, refine, device,
-                                         smooth=opt_smooth, init=init, physics=physics)  # fmt: skip
+                                         smooth=opt_smooth, init=init, physics=phys[i])  # fmt: skip
                 out["base_pos"] = out["base_pos"] + shift
                 outs[i] = out
             labels = [f"diffusion+refine{refine}"] * len(tgts)
     else:
         device = next(checkpoint.model.parameters()).device if checkpoint is not None else torch.device("cpu")
         outs = []
-        for t, eta, (feats, scaled, shift, rot_goals) in zip(tgts, etas, prepared):
+        for i, (t, eta, (feats, scaled, shift, rot_goals)) in enumerate(zip(tgts, etas, prepared)):
             out = _optimize_sequence(feats, scaled, rot_goals, ref, t, eta, energy or EnergyConfig(), fps, opt_iters, opt_gn_iters,
-                                     device, smooth=opt_smooth, physics=physics)  # fmt: skip
+                                     device, smooth=opt_smooth, physics=phys[i])  # fmt: skip
             out["base_pos"] = out["base_pos"] + shift
             outs.append(out)
     results = []
@@ -300,6 +311,10 @@ def retarget_file(
         motion = resample(motion, MODEL_FPS)
     skel = src_robot.skeleton
     feats = source_features(motion.base_pos, motion.base_quat, motion.node_angles(skel), skel, MODEL_FPS)
+    if kw.get("physics") is not None:
+        from mer_data.robots.collision import collision_model
+
+        kw["geometry"] = [collision_model(tgt_robot)]
     res = retarget_features(feats, skel, tgt_robot.skeleton, method=method, checkpoint=checkpoint, fps=MODEL_FPS, **kw)
     check_motion_finite(res.motion, out_csv or npz or mcap or plot or video)  # all outputs or none
     if out_csv is not None:

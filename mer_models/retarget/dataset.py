@@ -176,7 +176,7 @@ def _solve_batch(items: list[tuple[_Clip, tuple[int, int, int, int]]], src: Skel
     if physics is not None:
         from .clip import physics_inputs
 
-        per = [physics_inputs(pad(c.feats[a:b]), src, target, MODEL_FPS, physics, geometry) for c, (a, b, _, _) in items]
+        per = [physics_inputs(pad(c.feats[a:b]), src, geometry, MODEL_FPS, physics) for c, (a, b, _, _) in items]
         phys = dataclasses.replace(per[0], contacts=torch.cat([p.contacts for p in per]))
     out = optimize_motion(
         energy, g, torch.from_numpy(eta.astype(np.float32))[None].expand(B, -1, -1).to(device),
@@ -286,7 +286,9 @@ def retarget_dataset(
             t0 = time.perf_counter()
             world = _source(cjobs[0], src_robot, input_fps)
             results = retarget_features_many(world, src, [robots[j.target].skeleton for j in cjobs], method="diffusion", checkpoint=checkpoint,
-                                             fps=MODEL_FPS, physics=physics, **model_kw)  # fmt: skip
+                                             fps=MODEL_FPS, physics=physics,
+                                             geometry=None if physics is None else [collision_model(robots[j.target]) for j in cjobs],
+                                             **model_kw)  # fmt: skip
             seconds = (time.perf_counter() - t0) / len(cjobs)  # the pass is shared: each pair gets its share
             for j, res in zip(cjobs, results):
                 _write(j, robots[j.target], res.motion, world, src, formats, res.method, seconds, res.prepared, npz_fps)

@@ -114,6 +114,7 @@ def optimize_batch(
     physics=None,
     geometry=None,
     ref_skeleton=None,
+    fps: float = 30.0,
 ) -> dict[str, torch.Tensor]:
     """The optimiser on a collated batch, in the batch's frame (no model needed).
 
@@ -123,7 +124,7 @@ def optimize_batch(
     (:data:`mer_models.solver.optimize.DEFAULT_FINE`). ``physics``: a
     :class:`~mer_models.solver.physics.PhysicsConfig` for a batch of one target robot, whose
     collision model is ``geometry``, every sample's reference of ``ref_skeleton`` (the source's
-    foot contacts are read from the batch's reference features).
+    foot contacts are read from the batch's reference features, at ``fps`` [Hz]).
     """
     g = graph_from_batch(batch, "tgt", device)
     goal = batch["ref_scaled_pos"].to(device, torch.float32)
@@ -138,7 +139,6 @@ def optimize_batch(
         from mer_models.solver.physics import PhysicsInputs
 
         pos = split_features(batch["reference"].double())["pos"].numpy()
-        fps = float(batch.get("fps", 30.0)) if not torch.is_tensor(batch.get("fps")) else 30.0
         contacts = torch.from_numpy(np.stack([foot_contacts(p, ref_skeleton, fps) for p in pos]))
         sp = sole_points(ref_skeleton)
         phys = PhysicsInputs(geometry, contacts, fps, physics, (tuple(sp["left"]), tuple(sp["right"])))
