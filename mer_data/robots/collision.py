@@ -29,9 +29,9 @@ from mer_data.kinematics.collision import pair_depths
 from mer_data.skeleton import Skeleton
 
 from .builder import zero_pose_link_transforms
+from .mjcf import load_description
 from .registry import Robot
 from .shapes import Shape, read_collision, shapes_from_urdf
-from .urdf import load_urdf
 
 __all__ = ["CollisionModel", "shape_vertices", "polytope", "build_collision_model", "collision_model"]
 
@@ -296,7 +296,7 @@ def collision_model(robot: Robot) -> CollisionModel:
     hit = _models.get(key)
     if hit is not None:
         return hit
-    urdf = load_urdf(robot.urdf_path)
+    urdf = load_description(robot.urdf_path, geometry=False)
     if path is not None:
         cf = read_collision(path)
     else:  # no collision file: the URDF's primitives (its meshes are not read here)

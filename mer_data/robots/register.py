@@ -1,4 +1,4 @@
-"""``mer robots register``: a new robot from its URDF, in one call, with no code change."""
+"""``mer robots register``: a new robot from its URDF or MJCF, in one call, with no code change."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import json
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import yaml
@@ -18,6 +19,7 @@ from mer_data.skeleton import KEYPOINTS, Skeleton
 from .builder import build_skeleton
 from .card import DEFAULT_BODY_PARTS, RobotCard, parse_keypoints
 from .keypoints import KeypointProposal, propose_robot
+from .mjcf import description_format, expand_includes, load_mjcf
 from .registry import Robot, validate_robot_name, write_robot
 from .shapes import COLLISION_FILE, CollisionFile, dump_collision, shapes_from_urdf
 from .urdf import UrdfModel, load_urdf
@@ -120,16 +122,31 @@ def register_robot(
     locks: dict[str, float] | None = None,
     force: bool = False,
     dry_run: bool = False,
+    expect: Literal["urdf", "mjcf"] | None = None,
 ) -> RegistrationReport:
-    """Validate a URDF, settle its key points and locks, and install it in the registry atomically.
+    """Validate a URDF or MJCF, settle its key points and locks, and install it in the registry atomically.
 
+    The format is read from the file (a ``<mujoco>`` root is MJCF, :mod:`~mer_data.robots.mjcf`);
+    ``expect`` (``"urdf"`` or ``"mjcf"``, what the user said) only adds a note where it differs.
     Without ``keypoints_file`` the key points are proposed and finger joints locked
     (:func:`~mer_data.robots.keypoints.propose_robot`); prismatic joints not in ``locks`` are
     locked at 0 in any case. ``dry_run`` validates and reports without writing anything.
     """
     validate_robot_name(name)
     urdf_path = Path(urdf_path)
-    urdf = load_urdf(urdf_path)
+    fmt = description_format(urdf_path)
+    notes: list[str] = []
+    if expect is not None and expect != fmt:
+        notes.append(f"{urdf_path.name} is {'an MJCF model (<mujoco> root)' if fmt == 'mjcf' else 'a URDF (not <mujoco>)'}, "
+                     f"given as --{expect}: read as {fmt.upper()}")  # fmt: skip
+        log.info("%s", notes[-1])
+    stored = None
+    if fmt == "mjcf":
+        urdf = load_mjcf(urdf_path)
+        stored = expand_includes(urdf_path)  # one self-contained file in the registry
+    else:
+        urdf = load_urdf(urdf_path)
+    kind = "MJCF" if fmt == "mjcf" else "URDF"
     locks = dict(locks or {})
     warnings = list(urdf.warnings)
     sliding = prismatic_locks(urdf, locks)
@@ -139,12 +156,13 @@ def register_robot(
             "(mer's skeletons have turning joints only; --lock JOINT=VALUE holds one elsewhere)"
         )
     locks = {**sliding, **locks}
-    proposals, notes = None, []
+    proposals = None
     if keypoints_file is not None:
         keypoints = load_keypoints_file(keypoints_file)
     else:
         proposal = propose_robot(urdf, locks)
-        proposals, notes = proposal.keypoints, list(proposal.notes)
+        proposals = proposal.keypoints
+        notes.extend(proposal.notes)
         keypoints = {k: p.spec for k, p in proposals.items()}
         locks = {**proposal.locked, **locks}  # the user's --lock wins
     card = RobotCard(
@@ -153,7 +171,7 @@ def register_robot(
         keypoints=keypoints,
         locked=locks,
         body_parts=DEFAULT_BODY_PARTS,
-        description=f"{urdf.name} (registered from {urdf_path.name})",
+        description=f"{urdf.name} (registered from {urdf_path.name}{', MJCF' if fmt == 'mjcf' else ''})",
         path=str(keypoints_file) if keypoints_file else None,
     )
     skel = build_skeleton(urdf, card)  # refuse before anything is written
@@ -162,22 +180,26 @@ def register_robot(
     present = sum(v >= 0 for v in skel.keypoints.values())
     if present < 4:
         warnings.append(f"only {present} key points: retargeting has little to follow")
-    shapes, errors = shapes_from_urdf(urdf)  # meshes under the URDF's folder only, as convex hulls
-    if shapes.missing:
+    shapes, errors = shapes_from_urdf(urdf)  # URDF: meshes under its folder only; MJCF: MuJoCo's vertices; as hulls
+    # an MJCF's unreadable mesh files were named by load_mjcf already (with the bodies concerned)
+    told = {link for link, es in urdf.collisions.items() if any(e.get("vertices", ()) is None for e in es)}
+    untold = [link for link in shapes.missing if link not in told]
+    if untold:
+        where = "under its folder" if fmt == "urdf" else "under its meshdir"
         warnings.append(
-            f"collision meshes of {len(shapes.missing)} link(s) could not be read ({', '.join(shapes.missing[:6])}"
-            f"{', ...' if len(shapes.missing) > 6 else ''}): those bodies get capsules fitted along the links "
-            "(put the meshes where the URDF points, under its folder, and register again with --force)"
+            f"collision meshes of {len(untold)} link(s) could not be read ({', '.join(untold[:6])}"
+            f"{', ...' if len(untold) > 6 else ''}): those bodies get capsules fitted along the links "
+            f"(put the meshes where the {kind} points, {where}, and register again with --force)"
         )
     extra = {}
     if shapes.links:
-        shapes = CollisionFile(name, shapes.links, f"registered from {urdf_path.name}: primitives as in the URDF, meshes as "
+        shapes = CollisionFile(name, shapes.links, f"registered from {urdf_path.name}: primitives as in the {kind}, meshes as "
                                f"convex hulls (at most 48 vertices, worst error {1000 * max(errors.values(), default=0.0):.1f} mm)",
                                shapes.missing)  # fmt: skip
         card = dataclasses.replace(card, collision=COLLISION_FILE)
         extra[COLLISION_FILE] = dump_collision(shapes)
     if dry_run:
         return RegistrationReport(None, proposals, warnings, skel, card, urdf_path, notes)
-    robot, _ = write_robot(card, urdf_path, force=force, extra_files=extra)
+    robot, _ = write_robot(card, urdf_path, force=force, extra_files=extra, description=stored)
     log.info("registered %s", robot.skeleton)
     return RegistrationReport(robot, proposals, warnings, robot.skeleton, card, urdf_path, notes)

@@ -1,10 +1,15 @@
-"""The robot registry: name → (robot card, URDF, skeleton).
+"""The robot registry: name → (robot card, URDF or MJCF, skeleton).
 
 Built-in robots ship inside the package (``mer_data/robots/<name>/``). User robots live in the
 platform's user-data folder (``~/.local/share/mer/robots/<name>/`` on Linux), or under
 ``$MER_HOME/robots/<name>/`` when ``MER_HOME`` is set (:mod:`mer_data.robots.location`; robots
 left in the old cache-folder registry are moved there once), and are used by name everywhere the
 built-ins are.
+
+A robot registered from an MJCF keeps it as ``<name>.xml`` (its ``<include>`` files expanded
+into it; meshes are not copied, their hulls are in ``collision.json``): the card's ``urdf`` field
+names that file, and :func:`load_robot` reads it with :func:`~mer_data.robots.mjcf.load_mjcf`
+(kinematics only). URDF robots are stored and read as before.
 
 Registration is atomic: the new entry is written and validated in a temporary folder beside the
 registry and renamed into place; a failure or an interruption leaves no half-written entry.
@@ -31,6 +36,7 @@ from mer_data.skeleton import Skeleton
 from .builder import build_skeleton
 from .card import RobotCard, dump_card, load_card
 from .location import legacy_robots_dir, robots_dir
+from .mjcf import description_format, load_mjcf
 from .urdf import UrdfModel, load_urdf
 
 log = logging.getLogger(__name__)
@@ -74,7 +80,7 @@ def validate_robot_name(name: str) -> str:
 
 @dataclass(frozen=True)
 class Robot:
-    """A registered robot: its card, URDF and skeleton."""
+    """A registered robot: its card, description (``urdf_path``: a URDF, or an MJCF ``.xml``) and skeleton."""
 
     name: str
     card: RobotCard
@@ -107,8 +113,13 @@ def _folder_of(name: str) -> tuple[Path, bool]:
         return folder, False
     raise UnknownRobotError(
         f"unknown robot {name!r}; known robots: {', '.join(known_names())}",
-        fix=f"register it with `mer robots register {name} --urdf ROBOT.urdf`",
+        fix=f"register it with `mer robots register {name} --urdf ROBOT.urdf` (or --mjcf ROBOT.xml)",
     )
+
+
+def _load_description(path: Path) -> UrdfModel:
+    """A stored description: an MJCF (kinematics only: its meshes are not stored) or a URDF."""
+    return load_mjcf(path, geometry=False) if description_format(path) == "mjcf" else load_urdf(path)
 
 
 _cache: dict[tuple, Robot] = {}
@@ -119,7 +130,7 @@ def load_robot(name: str) -> Robot:
     """Look a robot up by name (built-in or registered); cached per file modification times."""
     folder, builtin = _folder_of(name)
     card_path = folder / CARD_FILE
-    key = (str(card_path), *(p.stat().st_mtime_ns for p in (card_path, *folder.glob("*.urdf"))))
+    key = (str(card_path), *(p.stat().st_mtime_ns for p in (card_path, *folder.glob("*.urdf"), *folder.glob("*.xml"))))
     with _lock:
         hit = _cache.get(key)
     if hit is not None:
@@ -133,7 +144,7 @@ def load_robot(name: str) -> Robot:
             fix=f"set `name: {name}`",
         )
     urdf_path = folder / card.urdf
-    robot = Robot(name, card, urdf_path, build_skeleton(load_urdf(urdf_path), card), builtin)
+    robot = Robot(name, card, urdf_path, build_skeleton(_load_description(urdf_path), card), builtin)
     with _lock:
         _cache[key] = robot
     return robot
@@ -173,11 +184,18 @@ def _sweep_stale() -> None:
 
 
 def write_robot(
-    card: RobotCard, urdf_source: Path, *, force: bool = False, extra_files: dict[str, str] | None = None
+    card: RobotCard,
+    urdf_source: Path,
+    *,
+    force: bool = False,
+    extra_files: dict[str, str] | None = None,
+    description: str | None = None,
 ) -> tuple[Robot, UrdfModel]:
-    """Validate ``card`` + URDF and install them as a user robot, atomically.
+    """Validate ``card`` + description and install them as a user robot, atomically.
 
-    The URDF bytes are copied as they are; the card is written with ``urdf: <name>.urdf``;
+    A URDF's bytes are copied as they are and the card is written with ``urdf: <name>.urdf``; an
+    MJCF (``<mujoco>`` root) is stored as ``<name>.xml``, its text given as ``description`` (the
+    file with its includes expanded, :func:`~mer_data.robots.mjcf.expand_includes`) or else copied.
     ``extra_files`` (file name → text, e.g. the card's ``collision.json``) are written beside them.
 
     Raises:
@@ -198,11 +216,14 @@ def write_robot(
         )
     root.mkdir(parents=True, exist_ok=True)
     _sweep_stale()
-    urdf_name = f"{name}.urdf"
+    urdf_name = f"{name}.xml" if description_format(urdf_source) == "mjcf" else f"{name}.urdf"
     parsed = {}
 
     def write(tmp: Path) -> None:
-        shutil.copyfile(urdf_source, tmp / urdf_name)
+        if description is not None:
+            (tmp / urdf_name).write_text(description, encoding="utf-8")
+        else:
+            shutil.copyfile(urdf_source, tmp / urdf_name)
         written_card = dataclasses.replace(card, urdf=urdf_name, path=str(tmp / CARD_FILE))
         (tmp / CARD_FILE).write_text(dump_card(written_card))
         for fname, text in (extra_files or {}).items():
@@ -210,7 +231,7 @@ def write_robot(
                 raise ValueError(f"extra robot file {fname!r} must be a plain file name other than the card's and the URDF's")
             (tmp / fname).write_text(text, encoding="utf-8")
         # validate exactly what was written, before it becomes visible
-        parsed["urdf"] = load_urdf(tmp / urdf_name)
+        parsed["urdf"] = _load_description(tmp / urdf_name)
         build_skeleton(parsed["urdf"], load_card(tmp / CARD_FILE))
 
     try:

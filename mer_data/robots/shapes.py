@@ -241,8 +241,9 @@ def _mesh_file(filename: str, urdf_dir: Path) -> Path | None:
 
 
 def shapes_from_urdf(urdf: Any, *, load_meshes: bool = True, max_vertices: int = 48) -> tuple[CollisionFile, dict[str, float]]:
-    """The collision shapes of a parsed URDF (:class:`~mer_data.robots.urdf.UrdfModel`): primitives
-    as they are, meshes (looked up under the URDF's folder only) as simplified convex hulls.
+    """The collision shapes of a parsed URDF or MJCF (:class:`~mer_data.robots.urdf.UrdfModel`):
+    primitives as they are, meshes as simplified convex hulls: a URDF's mesh files looked up under
+    its folder only, an MJCF's vertices as MuJoCo compiled them (entries with ``vertices``).
 
     Returns:
         the :class:`CollisionFile` (links whose mesh could not be read are in ``missing``) and the
@@ -262,9 +263,14 @@ def shapes_from_urdf(urdf: Any, *, load_meshes: bool = True, max_vertices: int =
                 out.append(Shape("sphere", t, radius=c["radius"]))
             elif c["type"] == "cylinder":
                 out.append(Shape("cylinder", t, radius=c["radius"], length=c["length"]))
+            elif c["type"] == "capsule":  # MJCF: along z, length between the sphere centres
+                out.append(Shape("capsule", t, radius=c["radius"], length=c["length"]))
             else:
-                f = _mesh_file(c["filename"], urdf_dir) if load_meshes else None
-                pts = _mesh_points(f) if f is not None else None
+                if "vertices" in c:  # MJCF: the compiled mesh's vertices (None: its file could not be read)
+                    pts = None if c["vertices"] is None or not load_meshes else _solid(np.asarray(c["vertices"], np.float64))
+                else:
+                    f = _mesh_file(c["filename"], urdf_dir) if load_meshes else None
+                    pts = _mesh_points(f) if f is not None else None
                 if pts is None:
                     if link not in missing:
                         missing.append(link)
@@ -279,6 +285,13 @@ def shapes_from_urdf(urdf: Any, *, load_meshes: bool = True, max_vertices: int =
 
 
 MAX_MESH_BYTES = 64 * 2**20
+
+
+def _solid(v: np.ndarray) -> np.ndarray | None:
+    """``v`` (V, 3) if it spans a volume (at least 4 finite points, not flat), else None."""
+    if len(v) < 4 or not np.isfinite(v).all() or np.linalg.matrix_rank(v - v.mean(0), tol=1e-9) < 3:
+        return None
+    return v
 
 
 def _mesh_points(path: Path) -> np.ndarray | None:

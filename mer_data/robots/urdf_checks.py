@@ -180,6 +180,13 @@ def parse_xml(data: bytes, path: str):
         raise _unsafe("DOCTYPE", path, 1)
     if not isinstance(root.tag, str):
         raise MalformedURDFError("the document has no element", path=path, fix="a URDF's top element must be <robot name=...>")
+    if root.tag == "mujoco":
+        raise MalformedURDFError(
+            "the root element is <mujoco>: this is an MJCF (MuJoCo) model, not a URDF",
+            path=path,
+            line=root.sourceline,
+            fix="register it with `mer robots register NAME --mjcf FILE.xml` (or read it with mer_data.robots.mjcf.load_mjcf)",
+        )
     if root.tag != "robot":
         raise MalformedURDFError(
             f"the root element is <{root.tag}>, not <robot>",

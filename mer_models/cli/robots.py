@@ -25,10 +25,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--json", action="store_true", help="machine-readable output")
     q.set_defaults(func=cmd_show)
 
-    q = rs.add_parser("register", help="add a robot from its URDF")
+    q = rs.add_parser("register", help="add a robot from its URDF or MJCF")
     q.add_argument("name", help="lower-case name, e.g. my_humanoid")
-    q.add_argument("--urdf", required=True, help="the robot's URDF (plain XML, no xacro)")
-    q.add_argument("--keypoints", help="YAML/JSON file of the 14 key points; proposed from the URDF if omitted")
+    src = q.add_mutually_exclusive_group(required=True)
+    src.add_argument("--urdf", help="the robot's URDF (plain XML, no xacro)")
+    src.add_argument("--mjcf", help="the robot's MJCF (MuJoCo XML, <mujoco> root; read with MuJoCo's compiler)")
+    q.add_argument("--keypoints", help="YAML/JSON file of the 14 key points; proposed from the description if omitted")
     q.add_argument("--lock", action="append", default=[], metavar="JOINT=VALUE", help="hold a joint at a value [rad]")
     q.add_argument("--force", action="store_true", help="replace a robot of the same name")
     q.add_argument("--dry-run", action="store_true", help="print what would be registered (the `show` table) and write nothing")
@@ -123,8 +125,9 @@ def cmd_show(args) -> int:
 
 def cmd_register(args) -> int:
     locks = dict(parse_lock(t) for t in args.lock)
+    path, expect = (args.mjcf, "mjcf") if args.mjcf is not None else (args.urdf, "urdf")
     report = register_robot(
-        args.name, args.urdf, keypoints_file=args.keypoints, locks=locks, force=args.force, dry_run=args.dry_run
+        args.name, path, keypoints_file=args.keypoints, locks=locks, force=args.force, dry_run=args.dry_run, expect=expect
     )
     if args.dry_run:
         print(skeleton_table(report.skeleton, description=report.card.description, urdf=str(report.urdf_path), source="dry run"))
