@@ -332,3 +332,103 @@ def test_yaml_aliases_are_refused_in_cards_and_key_point_files(tmp_path):
     f.write_text("keypoints:\n  base: &b {link: x}\n  left_hip: *b\n")
     with pytest.raises(MerError, match="alias"):
         load_keypoints_file(f)
+
+
+# ---- BVH (human motion capture) -------------------------------------------------------------
+
+
+def _valid_bvh() -> bytes:
+    """A small Y-up centimetre human (LAFAN1 names, 3 frames) that reads into a skeleton."""
+    body = []
+
+    def chain(names, offsets, depth, six=False):
+        ind = "  " * depth
+        name, rest = names[0], names[1:]
+        chans = "6 Xposition Yposition Zposition Zrotation Xrotation Yrotation" if six else "3 Zrotation Yrotation Xrotation"
+        body.extend([f"{ind}JOINT {name}", f"{ind}{{", f"{ind}  OFFSET {offsets[0]}", f"{ind}  CHANNELS {chans}"])
+        if rest:
+            chain(rest, offsets[1:], depth + 1)
+        else:
+            body.extend([f"{ind}  End Site", f"{ind}  {{", f"{ind}    OFFSET {offsets[-1]}", f"{ind}  }}"])
+        body.append(f"{ind}}}")
+
+    for s, x in (("Left", 9), ("Right", -9)):
+        chain([f"{s}UpLeg", f"{s}Leg", f"{s}Foot", f"{s}Toe"], [f"{x} -2 0", "0 -42 0", "0 -42 0", "0 -6 13", "0 0 5"], 1)
+    chain(["Spine", "Neck", "Head"], ["0 12 0", "0 30 0", "0 10 0", "0 15 0"], 1)
+    for s, x in (("Left", 1), ("Right", -1)):
+        chain([f"{s}Arm", f"{s}ForeArm", f"{s}Hand"], [f"{17 * x} 40 0", f"{28 * x} 0 0", f"{25 * x} 0 0", f"{8 * x} 0 0"], 2)
+    channels = 6 + 3 * sum(1 for line in body if "CHANNELS 3" in line)
+    frames = [" ".join(["1.5", "95", "-2.25"] + [f"{(7 * i + f) % 19 - 9}.5" for i in range(channels - 3)]) for f in range(3)]
+    text = "\n".join(["HIERARCHY", "ROOT Hips", "{", "  OFFSET 0 0 0",
+                      "  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation", *body, "}",
+                      "MOTION", "Frames: 3", "Frame Time: 0.0333333", *frames]) + "\n"  # fmt: skip
+    return text.encode()
+
+
+VALID_BVH = _valid_bvh()
+BVH_WORDS = st.sampled_from(
+    ["{", "}", "JOINT", "ROOT", "End", "Site", "OFFSET", "CHANNELS", "MOTION", "Frames:", "Frame Time:", "6", "3", "0",
+     "7", "-1", "Xposition", "Zrotation", "Wrotation", "nan", "1e999", "1e300", "0.0", "1_0", "\u0663", "Hips", "\t",
+     "\n", "\r", " ", "\x00", "\u00e9", "LeftUpLeg", "mixamorig:", "_L", "-0", ".5", "e5", "99999999999"]
+)  # fmt: skip
+
+
+@st.composite
+def bvh_inputs(draw) -> bytes:
+    kind = draw(st.sampled_from(["bytes", "tokens", "mutate", "lines"]))
+    if kind == "bytes":
+        return draw(st.binary(max_size=2048))
+    if kind == "tokens":  # the valid file with runs of BVH words spliced in
+        data = VALID_BVH
+        for _ in range(draw(st.integers(1, 4))):
+            pos = draw(st.integers(0, len(data)))
+            words = " ".join(draw(st.lists(BVH_WORDS, min_size=1, max_size=6))).encode("utf-8", "surrogatepass")
+            data = data[:pos] + words + data[pos + draw(st.integers(0, 12)) :]
+        return data
+    if kind == "lines":  # whole lines dropped, doubled or swapped
+        lines = VALID_BVH.split(b"\n")
+        for _ in range(draw(st.integers(1, 3))):
+            i, j = draw(st.integers(0, len(lines) - 1)), draw(st.integers(0, len(lines) - 1))
+            op = draw(st.sampled_from(["drop", "double", "swap"]))
+            if op == "drop":
+                del lines[i]
+            elif op == "double":
+                lines.insert(i, lines[i])
+            else:
+                lines[i], lines[j] = lines[j], lines[i]
+            if not lines:
+                break
+        return b"\n".join(lines)
+    data = VALID_BVH
+    for _ in range(draw(st.integers(1, 4))):  # byte-level edits
+        pos = draw(st.integers(0, len(data)))
+        chunk = draw(st.binary(min_size=1, max_size=8))
+        op = draw(st.sampled_from(["insert", "delete", "replace"]))
+        if op == "insert":
+            data = data[:pos] + chunk + data[pos:]
+        elif op == "delete":
+            data = data[:pos] + data[pos + len(chunk) :]
+        else:
+            data = data[:pos] + chunk + data[pos + len(chunk) :]
+    return data
+
+
+def _read_bvh(data: bytes) -> None:
+    from mer_data.motion.bvh import parse_bvh_bytes
+    from mer_data.motion.human import human_motion, human_skeleton
+
+    m = parse_bvh_bytes(data, "fuzz.bvh")
+    assert np.isfinite(m.positions()).all()
+    skel = human_skeleton(m)  # the human on top: key points, folding, nodes
+    base_pos, base_quat, q = human_motion(m, skel)
+    assert np.isfinite(base_pos).all() and np.isfinite(base_quat).all() and np.isfinite(q).all()
+
+
+def test_the_valid_bvh_reads_into_a_human():
+    _read_bvh(VALID_BVH)
+
+
+@fuzz_settings(300)
+@given(data=bvh_inputs())
+def test_fuzz_bvh_reader(data):
+    _run("BVH", _read_bvh, data)

@@ -206,3 +206,10 @@ class ChecksumError(ModelZooError):
 
 class PublishError(ModelZooError):
     """A checkpoint or card that cannot be published (missing files, unknown licence, name taken)."""
+
+
+class BVHError(MotionFormatError):
+    """A BVH motion capture file that mer cannot read, or cannot turn into a human skeleton."""
+
+
+__all__.append("BVHError")

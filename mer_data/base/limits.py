@@ -55,6 +55,10 @@ LIMITS: dict[str, Limit] = {
         Limit("MER_MAX_CSV_LINE_BYTES", 64 * 2**10, "bytes", "length of one line of a motion CSV"),
         Limit("MER_MAX_CONFIG_BYTES", 2**20, "bytes", "size of a checkpoint's config.json"),
         Limit("MER_MAX_MODEL_PARAMETERS", 500_000_000, "parameters", "parameters of a model built from a config"),
+        Limit("MER_MAX_BVH_BYTES", 256 * 2**20, "bytes", "size of a BVH motion capture file"),
+        Limit("MER_MAX_BVH_LINE_BYTES", 2**20, "bytes", "length of one line of a BVH file"),
+        Limit("MER_MAX_BVH_JOINTS", 1_000, "joints", "number of joints (and End Sites) in a BVH hierarchy"),
+        Limit("MER_MAX_BVH_FRAMES", 2_000_000, "frames", "number of frames of a BVH motion"),
     )
 }
 
