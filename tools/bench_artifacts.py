@@ -9,7 +9,7 @@ h1, h1_2), the same frames of those are measured the same way, as the peer. Also
 of mer's retarget (the paper's metrics) and frames/s of the retargeting alone.
 
     python tools/bench_artifacts.py --input ../shared/data/lafan1 --json runs/artifacts.json
-    python tools/bench_artifacts.py --input ../shared/data/lafan1 --physics   # with the physical terms
+    python tools/bench_artifacts.py --input ../shared/data/lafan1 --methods physics   # only with the physical terms
 
 Prints one row per (target, method) over all clips: frames with a foot below -1 cm, deepest [cm],
 median foot skate in contact [cm/s], self-penetration > 1 cm, frame pairs over the URDF velocity
@@ -65,13 +65,14 @@ def main(argv=None) -> int:
     p.add_argument("--end", type=int, default=1050)
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--json", help="also write every figure here")
-    p.add_argument("--physics", action="store_true", help="mer's optimiser with its physical terms (their defaults), as mer retarget --physics")
+    p.add_argument("--methods", nargs="+", default=["optimize", "physics"], choices=["optimize", "physics"],
+                   help="mer's optimiser without its physical terms (mer retarget --no-physics) and with them (the default); "
+                        "both: each target's two runs back to back, and a per-clip g-mpbpe table")
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
     src = load_robot(args.source)
     sl = slice(args.start, args.end)
-    physics = PhysicsConfig() if args.physics else None
-    label = "mer physics" if args.physics else "mer optimize"
+    per_clip: dict[tuple[str, str], dict[str, float]] = {}
     feats = {}
     for clip in args.clips:
         m = read_lafan1_csv(Path(args.input) / args.source / f"{clip}.csv", src)
@@ -81,20 +82,25 @@ def main(argv=None) -> int:
     for t in args.targets:
         robot = load_robot(t)
         geom = collision_model(robot)
-        arts, g, jerk, lim, frames, sec = [], [], [], [], 0, 0.0
         peer, peer_lim = [], []
-        for clip, f in feats.items():
-            t0 = time.perf_counter()
-            res = retarget_features(f, src.skeleton, robot.skeleton, method="optimize", fps=FPS, physics=physics)
-            sec += time.perf_counter() - t0
-            frames += len(f)
-            met = sequence_metrics(f, src.skeleton, res.motion, prepared=res.prepared, geometry=geom)
-            arts.append(met)
-            g.append(met["g_mpbpe"])
-            jerk.append(met["jerk_frame"])
-            lim.append(met["limit_violation"])
-            own = Path(args.input) / t / f"{clip}.csv"
-            if own.is_file() and t != args.source:
+        for mi, method in enumerate(args.methods):
+            physics = PhysicsConfig() if method == "physics" else None
+            label = f"mer {method}"
+            arts, g, jerk, lim, frames, sec = [], [], [], [], 0, 0.0
+            for clip, f in feats.items():
+                t0 = time.perf_counter()
+                res = retarget_features(f, src.skeleton, robot.skeleton, method="optimize", fps=FPS, physics=physics)
+                sec += time.perf_counter() - t0
+                frames += len(f)
+                met = sequence_metrics(f, src.skeleton, res.motion, prepared=res.prepared, geometry=geom)
+                arts.append(met)
+                g.append(met["g_mpbpe"])
+                per_clip.setdefault((t, clip), {})[method] = met["g_mpbpe"]
+                jerk.append(met["jerk_frame"])
+                lim.append(met["limit_violation"])
+                own = Path(args.input) / t / f"{clip}.csv"
+                if mi > 0 or not own.is_file() or t == args.source:
+                    continue
                 u = read_lafan1_csv(own, robot)
                 q = u.node_angles(robot.skeleton)[sl]
                 rot = quat_to_matrix(torch.from_numpy(u.base_quat[sl])).numpy()
@@ -102,13 +108,14 @@ def main(argv=None) -> int:
                 lo, hi = robot.skeleton.lower, robot.skeleton.upper
                 rev = np.array([k == "revolute" for k in robot.skeleton.node_kinds])
                 peer_lim.append(float(((q[:, rev] < lo[rev] - 1e-6) | (q[:, rev] > hi[rev] + 1e-6)).any(1).mean()))
-        if peer:
-            rows.append({"target": t, "method": "Unitree", **_row(peer, {"limit_violation": float(np.mean(peer_lim))})})
-        rows.append({"target": t, "method": label, **_row(arts, {
-            "limit_violation": float(np.mean(lim)), "g_mpbpe": float(np.mean(g)), "jerk_frame": float(np.mean(jerk)),
-            "frames_per_s": frames / sec})})  # fmt: skip
-        r = rows[-1]
-        print(f"{t}: {r['floor_frames']:.3f} below -1 cm, deepest {100 * r['floor_depth_max']:.1f} cm", file=sys.stderr)
+            if peer and mi == 0:
+                rows.append({"target": t, "method": "Unitree", **_row(peer, {"limit_violation": float(np.mean(peer_lim))})})
+            rows.append({"target": t, "method": label, **_row(arts, {
+                "limit_violation": float(np.mean(lim)), "g_mpbpe": float(np.mean(g)), "jerk_frame": float(np.mean(jerk)),
+                "frames_per_s": frames / sec})})  # fmt: skip
+            r = rows[-1]
+            print(f"{t} {method}: {r['floor_frames']:.3f} below -1 cm, deepest {100 * r['floor_depth_max']:.1f} cm, "
+                  f"{frames / sec:.0f} frames/s", file=sys.stderr)  # fmt: skip
     head = (f"{'target':9s} {'method':13s} {'foot<-1cm':>9s} {'deepest':>8s} {'skate':>7s} {'selfpen':>8s} {'>v.lim':>7s}"
             f" {'floating':>8s} {'limits':>7s} {'g-mpbpe':>8s} {'jerk':>8s} {'fr/s':>6s}")  # fmt: skip
     print(f"G1 source, frames {args.start + 1}-{args.end} of {', '.join(args.clips)}; shares of frames; deepest [cm], "
@@ -123,9 +130,19 @@ def main(argv=None) -> int:
               f"{num('skate_median', 100, '.1f'):>7s} {num('selfpen_1cm_frames'):>8s} {num('speed_frames'):>7s} "
               f"{num('floating_frames'):>8s} {num('limit_violation'):>7s} {num('g_mpbpe', 1, '.4f'):>8s} "
               f"{num('jerk_frame', 1, '.4f'):>8s} {num('frames_per_s', 1, '.0f'):>6s}")  # fmt: skip
+    if len(args.methods) == 2:
+        print("\ng-mpbpe with the physical terms / without, per clip")
+        print(f"{'target':9s} " + " ".join(f"{c[:12]:>12s}" for c in args.clips))
+        for t in args.targets:
+            cells = []
+            for c in args.clips:
+                v = per_clip.get((t, c), {})
+                cells.append(f"{v['physics'] / v['optimize']:12.2f}" if len(v) == 2 and v["optimize"] > 0 else f"{'-':>12s}")
+            print(f"{t:9s} " + " ".join(cells))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps({"args": vars(args), "rows": rows}, indent=1) + "\n")
+        clips = [{"target": t, "clip": c, **v} for (t, c), v in per_clip.items()]
+        Path(args.json).write_text(json.dumps({"args": vars(args), "rows": rows, "g_mpbpe_per_clip": clips}, indent=1) + "\n")
     return 0
 
 

@@ -41,13 +41,15 @@ def lowest_points(model: Any, pos: torch.Tensor, rot: torch.Tensor) -> tuple[tor
 
 
 def pair_depths(model: Any, pos: torch.Tensor, rot: torch.Tensor, pairs: Any = None, *, margin: float = 0.0,
-                chunk: int = 2048) -> torch.Tensor:  # fmt: skip
+                chunk: int = 2048, which: str = "points") -> torch.Tensor:  # fmt: skip
     """Penetration depth of each checked pair (see the module docstring): (..., K) [m].
 
     Args:
         pairs: (K, 2) shape indices (default ``model.pairs``).
         margin: pairs whose bounding spheres are more than ``margin`` apart are not computed exactly.
         chunk: (frame, pair) entries computed at once (memory ~ chunk * points * planes).
+        which: the sample points whose depth is measured: ``points`` (vertices and edge points,
+            the metrics) or ``vertices`` (about a tenth of them: the solver's faster search).
     """
     pairs = torch.as_tensor(model.pairs if pairs is None else pairs, device=pos.device).reshape(-1, 2)
     lead = pos.shape[:-2]
@@ -74,7 +76,7 @@ def pair_depths(model: Any, pos: torch.Tensor, rot: torch.Tensor, pairs: Any = N
         near &= ~(sep > margin)
     near = near.nonzero()
     if len(near):
-        pts, verts = _t(model.points, pos), _t(model.vertices, pos)
+        pts, verts = _t(getattr(model, which), pos), _t(model.vertices, pos)
         planes = _t(model.planes, pos)
         vals = []
         for s in range(0, len(near), chunk):
@@ -110,12 +112,15 @@ def _inside(pts, planes, node, pos, rot, f, sa, sb, gap: bool = False) -> torch.
     return (-signed.amax(-1)).amax(-1)
 
 
-def pair_contacts(model: Any, pos: torch.Tensor, rot: torch.Tensor, *, margin: float = 0.0, top: int = 8, pairs: Any = None):
+def pair_contacts(model: Any, pos: torch.Tensor, rot: torch.Tensor, *, margin: float = 0.0, top: int = 8, pairs: Any = None,
+                  which: str = "points", mask: torch.Tensor | None = None):  # fmt: skip
     """The ``top`` deepest checked pairs of every frame, and their deepest points (what pushes bodies apart).
 
     Args:
         pos, rot: (B, T, J, 3), (B, T, J, 3, 3) node poses.
         pairs: (K, 2) the shape pairs to look at (default ``model.pairs``).
+        which: the sample points (:func:`pair_depths`).
+        mask: (B, K) bool, the pairs each sample looks at (default: all).
 
     Returns:
         None if no pair is within ``margin``; else ``(entries, contacts)``: entries ``(b, t, slot,
@@ -123,7 +128,9 @@ def pair_contacts(model: Any, pos: torch.Tensor, rot: torch.Tensor, *, margin: f
     """
     B, T = pos.shape[:2]
     pairs = torch.as_tensor(model.pairs if pairs is None else pairs, device=pos.device).reshape(-1, 2)
-    d = pair_depths(model, pos, rot, pairs, margin=margin)  # (B, T, K)
+    d = pair_depths(model, pos, rot, pairs, margin=margin, which=which)  # (B, T, K)
+    if mask is not None:
+        d = d.masked_fill(~mask[:, None, :], float("-inf"))
     K = min(top, d.shape[-1])
     if K == 0:
         return None
@@ -134,10 +141,10 @@ def pair_contacts(model: Any, pos: torch.Tensor, rot: torch.Tensor, *, margin: f
     bi, ti, ki = sel.nonzero(as_tuple=True)
     pk = k[bi, ti, ki]
     entries = (bi, ti, ki, pairs[pk, 0], pairs[pk, 1])
-    return entries, contact_points(model, pos, rot, entries, K)
+    return entries, contact_points(model, pos, rot, entries, K, which)
 
 
-def contact_points(model: Any, pos: torch.Tensor, rot: torch.Tensor, entries: tuple, K: int):
+def contact_points(model: Any, pos: torch.Tensor, rot: torch.Tensor, entries: tuple, K: int, which: str = "points"):
     """Depth and deepest point of given (frame, pair) entries (:func:`pair_contacts`), laid out (B, T, K).
 
     Returns:
@@ -150,7 +157,7 @@ def contact_points(model: Any, pos: torch.Tensor, rot: torch.Tensor, entries: tu
     B, T = pos.shape[:2]
     bi, ti, ki, sa, sb = entries
     node = torch.as_tensor(model.node, device=pos.device)
-    pts, planes = _t(model.points, pos), _t(model.planes, pos)
+    pts, planes = _t(getattr(model, which), pos), _t(model.planes, pos)
     p2, r2 = pos.reshape(B * T, *pos.shape[2:]), rot.reshape(B * T, *rot.shape[2:])
     f = bi * T + ti
     da, pa, na = _deepest(pts, planes, node, p2, r2, f, sa, sb)

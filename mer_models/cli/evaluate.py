@@ -38,8 +38,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="how the reference is scaled to each target: per segment (default) or the paper's per body part")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--device", default="cpu")
-    p.add_argument("--physics", action="store_true",
-                   help="the optimiser (methods optimize and refine) with its physical terms, as mer retarget --physics")
+    p.add_argument("--physics", action=argparse.BooleanOptionalAction, default=True,
+                   help="the optimiser (methods optimize and refine) with its physical terms, as mer retarget (default; "
+                        "--no-physics: key points alone, the paper's energy)")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.add_argument("--save", help="also write the JSON report to this file")
     p.set_defaults(func=cmd_evaluate)

@@ -61,14 +61,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fps", type=float, default=30.0, help="frame rate of the input (resampled to 30 Hz)")
     p.add_argument("--device", default="cpu")
     p.add_argument("--allow-unseen", action="store_true", help="retarget to a robot the model never saw (zero-shot)")
-    p.add_argument("--physics", action="store_true",
-                   help="the optimiser (--method optimize, --refine) also keeps every body above the floor "
-                        "(experimental, slower; docs/decisions.md, Physical terms of the optimiser)")
+    p.add_argument("--physics", action=argparse.BooleanOptionalAction, default=True,
+                   help="the optimiser (--method optimize, --refine) keeps every body above the floor and every joint "
+                        "within its URDF speed limit (default; about half the frames/s: --no-physics for key points "
+                        "alone; docs/decisions.md, Physical terms of the optimiser)")
     p.set_defaults(func=cmd_retarget)
 
 
 def physics_option(args):
-    """The optimiser's physical terms when ``--physics`` is given (their default weights), else None."""
+    """The optimiser's physical terms (their default weights), None with ``--no-physics``."""
     if not args.physics:
         return None
     from mer_models.solver.physics import PhysicsConfig

@@ -24,6 +24,9 @@ def add_parser(ss: argparse._SubParsersAction) -> None:
     p.add_argument("--optimizer-version", type=int, choices=[1, 2], default=None, metavar="V",
                    help="the optimiser's schedule: 2 (default) finishes with whole-window iterations, 1 with Jacobi "
                         "ones, as teachers solved before version 2 were (docs/model.md, The optimiser)")
+    p.add_argument("--physics", action=argparse.BooleanOptionalAction, default=True,
+                   help="the optimiser's physical terms, as mer retarget (default; --no-physics: key points alone, "
+                        "as teachers solved before them)")
     p.add_argument("--batch", type=int, default=64, metavar="N", help="windows solved together (default 64)")
     p.add_argument("--shard-index", type=int, default=None, metavar="I", help="solve only shard files i with i %% N == I")
     p.add_argument("--num-shards", type=int, default=1, metavar="N", help="number of parallel jobs (default 1)")
@@ -49,6 +52,8 @@ def cmd_solve(args) -> int:
 
         torch.set_num_threads(args.threads)
     kw = {"scaling": args.scaling, "batch": args.batch}
+    if not args.physics:
+        kw["physics"] = None
     if args.gn_iters is not None:
         if args.gn_iters < 1:
             raise MerError("--gn-iters must be >= 1")

@@ -119,15 +119,29 @@ def physics_inputs(feats: np.ndarray, ref: Skeleton, geometry, fps: float, cfg, 
     """:class:`~mer_models.solver.physics.PhysicsInputs` of one motion for a target whose collision
     model is ``geometry``: the source's foot contacts from its features (N, Jr, 9), unless given
     (``contacts`` (1, N, 2))."""
-    from mer_data.motion.contacts import foot_contacts, sole_points
+    from mer_data.motion.contacts import foot_contacts
     from mer_data.motion.features import split_features
     from mer_models.solver.physics import PhysicsInputs
 
     if contacts is None:
         pos = split_features(torch.from_numpy(np.asarray(feats, np.float64)))["pos"].numpy()
         contacts = torch.from_numpy(foot_contacts(pos, ref, fps))[None]
-    sp = sole_points(ref)
-    return PhysicsInputs(geometry, contacts, fps, cfg, (tuple(sp["left"]), tuple(sp["right"])))
+    return PhysicsInputs.of_reference(geometry, contacts, fps, cfg, ref)
+
+
+def feasible_motion(motion: TargetMotion, geometry, physics) -> TargetMotion:
+    """``motion`` made feasible after a solve with ``physics`` (a
+    :class:`~mer_models.solver.physics.PhysicsConfig`) if it asks for it
+    (:func:`mer_models.retarget.feasible.make_feasible`)."""
+    if not physics.feasible:
+        return motion
+    from .feasible import make_feasible
+
+    out, rep = make_feasible(motion, geometry, speed_fraction=physics.speed_fraction)
+    if rep.frames_clamped or rep.frames_lifted:
+        log.info("feasible: %d frames' angles slowed (at most %.3f rad), %d frames lifted (at most %.1f cm)",
+                 rep.frames_clamped, rep.max_angle_change, rep.frames_lifted, 100 * rep.max_lift)  # fmt: skip
+    return out
 
 
 def _optimize_sequence(feats, scaled, rot_goals, ref: Skeleton, target: Skeleton, eta, energy: EnergyConfig, fps, iters, gn_iters, device,
@@ -255,9 +269,11 @@ def retarget_features_many(
             out["base_pos"] = out["base_pos"] + shift
             outs.append(out)
     results = []
-    for t, eta, prep, out, label in zip(tgts, etas, prepared, outs, labels):
+    for i, (t, eta, prep, out, label) in enumerate(zip(tgts, etas, prepared, outs, labels)):
         _, scaled, shift, _ = prep
         motion = TargetMotion(t, fps, out["q"], out["base_pos"], out["base_rot"])
+        if phys[i] is not None and (method == "optimize" or refine > 0):
+            motion = feasible_motion(motion, phys[i].model, physics)
         results.append(RetargetResult(motion, _reference_points(scaled, shift, eta), label, reference_nodes=scaled + shift,
                                       reference_skeleton=ref, prepared=prep))  # fmt: skip
     return results

@@ -118,10 +118,13 @@ class _Clip:
     base_pos: np.ndarray = field(init=False)
     base_rot: np.ndarray = field(init=False)
     pending: int = 0
+    goal: np.ndarray | None = None  # (N, Jr, 3) the solver's position goals (default: ``scaled``; the stance lock edits them)
 
     def __post_init__(self) -> None:
         n = self.feats.shape[0]
         self.q, self.base_pos, self.base_rot = np.zeros((n, 0)), np.zeros((n, 3)), np.zeros((n, 3, 3))
+        if self.goal is None:
+            self.goal = self.scaled
 
 
 def _segments(n: int, segment: int, context: int) -> list[tuple[int, int, int, int]]:
@@ -157,6 +160,17 @@ def _read(job: Job, source: Robot, target: Skeleton, fps: float) -> _Clip:
     return _Clip(job, f, scaled, goal_rot, rot_mask, shift, feats)
 
 
+def _lock_stance(c: _Clip, src: Skeleton, geometry, physics) -> None:
+    """The stance lock (``physics.lock_blend``) on the whole clip's goals, so that a stance phase
+    cut by a segment boundary keeps one anchor (:meth:`mer_models.solver.physics.PhysicsInputs.lock_goals`)."""
+    if physics is None or geometry is None or physics.lock_blend < 0:
+        return
+    from .clip import physics_inputs
+
+    inputs = physics_inputs(c.feats, src, geometry, MODEL_FPS, physics)
+    c.goal = inputs.lock_goals(torch.from_numpy(c.scaled)[None])[0].numpy()
+
+
 def _solve_batch(items: list[tuple[_Clip, tuple[int, int, int, int]]], src: Skeleton, target: Skeleton, span: int,
                  energy: EnergyConfig, device: str, physics=None, geometry=None) -> None:  # fmt: skip
     """Optimise segments of several clips in one batch and write their cores back into the clips
@@ -167,7 +181,7 @@ def _solve_batch(items: list[tuple[_Clip, tuple[int, int, int, int]]], src: Skel
     def pad(x: np.ndarray) -> np.ndarray:
         return x if len(x) == span else np.concatenate([x, np.repeat(x[-1:], span - len(x), 0)])
 
-    goal = np.stack([pad(c.scaled[a:b]) for c, (a, b, _, _) in items])
+    goal = np.stack([pad(c.goal[a:b]) for c, (a, b, _, _) in items])
     grot = np.stack([pad(c.goal_rot[a:b]) for c, (a, b, _, _) in items])
     rvec = np.stack([pad(c.feats[a:b, 0, 0:3]) for c, (a, b, _, _) in items])
     one = collate([TrainingSample(items[0][0].feats[:3].astype(np.float32), src, target, eta)])  # the target's graph
@@ -176,7 +190,8 @@ def _solve_batch(items: list[tuple[_Clip, tuple[int, int, int, int]]], src: Skel
     if physics is not None:
         from .clip import physics_inputs
 
-        per = [physics_inputs(pad(c.feats[a:b]), src, geometry, MODEL_FPS, physics) for c, (a, b, _, _) in items]
+        seg = dataclasses.replace(physics, lock_blend=-1)  # the stance lock is on the whole clip's goals (_lock_stance)
+        per = [physics_inputs(pad(c.feats[a:b]), src, geometry, MODEL_FPS, seg) for c, (a, b, _, _) in items]
         phys = dataclasses.replace(per[0], contacts=torch.cat([p.contacts for p in per]))
     out = optimize_motion(
         energy, g, torch.from_numpy(eta.astype(np.float32))[None].expand(B, -1, -1).to(device),
@@ -193,10 +208,15 @@ def _solve_batch(items: list[tuple[_Clip, tuple[int, int, int, int]]], src: Skel
 
 
 def _finish(c: _Clip, target: Robot, src: Skeleton, formats: Sequence[str], method: str, seconds: float,
-            npz_fps: float | None = NPZ_FPS) -> dict:  # fmt: skip
-    """Write a finished clip's outputs (metrics file last) and return its summary row."""
+            npz_fps: float | None = NPZ_FPS, physics=None, geometry=None) -> dict:  # fmt: skip
+    """Write a finished clip's outputs (metrics file last) and return its summary row (with
+    ``physics``, the whole motion made feasible first: :func:`.clip.feasible_motion`)."""
     skel = target.skeleton
     motion = TargetMotion(skel, MODEL_FPS, c.q[:, : skel.num_nodes], c.base_pos + c.shift, c.base_rot)
+    if physics is not None and geometry is not None:
+        from .clip import feasible_motion
+
+        motion = feasible_motion(motion, geometry, physics)
     prepared = (c.feats, c.scaled, c.shift, (c.goal_rot, c.rot_mask))
     return _write(c.job, target, motion, c.world_feats, src, formats, method, seconds, prepared, npz_fps)
 
@@ -309,6 +329,7 @@ def retarget_dataset(
         started: dict[str, float] = {}
         for k, j in enumerate(tjobs):
             c = _read(j, src_robot, target.skeleton, input_fps)
+            _lock_stance(c, src, geometry, physics)
             started[j.clip] = time.perf_counter()
             segs = _segments(c.feats.shape[0], segment, context)
             c.pending = len(segs)
@@ -319,7 +340,8 @@ def retarget_dataset(
                 _solve_batch(items, src, target.skeleton, span, energy, device, physics, geometry)
                 for c2 in dict.fromkeys(c for c, _ in items):
                     if c2.pending == 0:
-                        _finish(c2, target, src, formats, method, time.perf_counter() - started[c2.job.clip], npz_fps)
+                        _finish(c2, target, src, formats, method, time.perf_counter() - started[c2.job.clip], npz_fps,
+                                physics, geometry)  # fmt: skip
                         frames_done += c2.feats.shape[0]
                         pairs_done += 1
                         if progress is not None:

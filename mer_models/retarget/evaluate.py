@@ -220,7 +220,8 @@ def evaluate(
     for target in targets:
         tgt = tgt_robots[target].skeleton
         geometry = collision_model(tgt_robots[target]) if opts.artifacts or opts.physics is not None else None
-        phys_kw = {"physics": opts.physics, "geometry": geometry, "ref_skeleton": ref, "fps": WINDOW_FPS} if opts.physics is not None else {}
+        phys_kw = {"physics": opts.physics, "geometry": geometry, "ref_skeleton": ref, "fps": WINDOW_FPS,
+                   "target_skeleton": tgt} if opts.physics is not None else {}
         eta = joint_map(tgt, ref)
         for dom in DOMAINS:
             w = windows[dom]

@@ -27,6 +27,7 @@ from mer_models.diffusion.sampling import (
     sample_feedback,
     sample_heun,
 )
+from mer_models.solver.energy import energy_terms
 from mer_models.solver.ik import DEFAULT_SMOOTH
 from mer_models.solver.optimize import DEFAULT_FINE, DEFAULT_GN_ITERS, DEFAULT_ITERS, optimize_motion
 
@@ -115,6 +116,7 @@ def optimize_batch(
     geometry=None,
     ref_skeleton=None,
     fps: float = 30.0,
+    target_skeleton=None,
 ) -> dict[str, torch.Tensor]:
     """The optimiser on a collated batch, in the batch's frame (no model needed).
 
@@ -124,7 +126,9 @@ def optimize_batch(
     (:data:`mer_models.solver.optimize.DEFAULT_FINE`). ``physics``: a
     :class:`~mer_models.solver.physics.PhysicsConfig` for a batch of one target robot, whose
     collision model is ``geometry``, every sample's reference of ``ref_skeleton`` (the source's
-    foot contacts are read from the batch's reference features, at ``fps`` [Hz]).
+    foot contacts are read from the batch's reference features, at ``fps`` [Hz]); with
+    ``target_skeleton`` (the batch's one target) each window is then made feasible
+    (:func:`mer_models.retarget.clip.feasible_motion`).
     """
     g = graph_from_batch(batch, "tgt", device)
     goal = batch["ref_scaled_pos"].to(device, torch.float32)
@@ -134,15 +138,30 @@ def optimize_batch(
         rkw = {"goal_rot": batch["ref_goal_rot"].to(device, torch.float32), "rot_mask": batch["ref_rot_mask"].to(device)}
     phys = None
     if physics is not None:
-        from mer_data.motion.contacts import foot_contacts, sole_points
+        from mer_data.motion.contacts import foot_contacts
         from mer_data.motion.features import split_features
         from mer_models.solver.physics import PhysicsInputs
 
         pos = split_features(batch["reference"].double())["pos"].numpy()
         contacts = torch.from_numpy(np.stack([foot_contacts(p, ref_skeleton, fps) for p in pos]))
-        sp = sole_points(ref_skeleton)
-        phys = PhysicsInputs(geometry, contacts, fps, physics, (tuple(sp["left"]), tuple(sp["right"])))
+        phys = PhysicsInputs.of_reference(geometry, contacts, fps, physics, ref_skeleton)
     out = optimize_motion(energy, g, batch["joint_map"].to(device, torch.float32), goal, ref_rot, iters=iters, gn_iters=gn_iters,
-                          init=init, smooth=smooth, fine=fine, physics=phys, **rkw)  # fmt: skip
-    return {"q": out["q"], "base_pos": out["base_pos"], "base_rot": out["base_rot"], "energy": out["energy"]}
+                          init=init, smooth=smooth, fine=fine, physics=phys, fps=fps, **rkw)  # fmt: skip
+    res = {"q": out["q"], "base_pos": out["base_pos"], "base_rot": out["base_rot"], "energy": out["energy"]}
+    if phys is not None and target_skeleton is not None and physics.feasible:
+        from mer_models.export.writers import TargetMotion
+
+        from .clip import feasible_motion
+
+        J = target_skeleton.num_nodes
+        for b in range(res["q"].shape[0]):
+            m = TargetMotion(target_skeleton, fps, res["q"][b, :, :J].double().cpu().numpy(),
+                             res["base_pos"][b].double().cpu().numpy(), res["base_rot"][b].double().cpu().numpy())  # fmt: skip
+            m = feasible_motion(m, geometry, physics)
+            res["q"][b, :, :J] = torch.from_numpy(m.q).to(res["q"])
+            res["base_pos"][b] = torch.from_numpy(m.base_pos).to(res["base_pos"])
+        with torch.no_grad():  # the energy of what is returned
+            res["energy"] = energy_terms(energy, g, res["q"], res["base_pos"], res["base_rot"], batch["joint_map"].to(device, torch.float32),
+                                         goal, fps, **rkw)["total"]  # fmt: skip
+    return res
 

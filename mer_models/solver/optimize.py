@@ -45,7 +45,7 @@ from typing import Any
 import torch
 
 from mer_data.kinematics.rotations import axis_angle_to_matrix, matrix_to_quat, quat_slerp, quat_to_matrix
-from mer_models.batch import BatchGraph
+from mer_models.batch import BatchGraph, batch_fk
 from mer_models.config import EnergyConfig
 
 from .energy import energy_terms
@@ -140,14 +140,17 @@ def optimize_motion(
 
     Returns:
         ``q`` (B, T, Jt) [rad] inside the limits, ``base_pos`` (B, T, 3), ``base_rot`` (B, T, 3, 3),
-        and ``energy`` (B,) the final weighted energy; all detached.
+        and ``energy`` (B,) the final weighted energy (against ``goal`` as given: the physical
+        terms' goal edits are not counted); all detached.
     """
     if fine not in FINE_ITERS:
         raise ValueError(f"fine={fine!r}: expected one of {', '.join(map(repr, FINE_ITERS))}")
     B, T = goal.shape[:2]
     J = graph.parents.shape[1]
+    repair, goal_in = physics, goal
     if physics is not None:
-        goal = physics.lock_goals(goal)
+        goal = physics.separate_feet(physics.lock_goals(goal), ref_base_rot)
+        physics = physics.main()
     lower, upper = graph.lower[:, None].expand(B, T, J), graph.upper[:, None].expand(B, T, J)
     gkw = {"goal_rot": goal_rot, "rot_mask": rot_mask}
     with torch.no_grad():
@@ -183,6 +186,16 @@ def optimize_motion(
                                              stats=ik_stats, physics=physics, **gkw)  # fmt: skip
             if stats is not None:
                 stats["gn_iterations"] = ik_stats.get("iterations", 0)
+            if repair is not None and repair.repairs and smooth > 0:  # the self term, on the pairs the solve left interpenetrating
+                pos, rot = batch_fk(graph, q0, p0, r0)
+                fix = repair.repair(pos, rot)
+                if fix is not None:  # only the samples with a pair interpenetrating, each on its own
+                    rows, terms = fix
+                    sub = {k: None if v is None else v[rows] for k, v in gkw.items()}
+                    qr, pr, rr = coupled_lm_ik(cfg, graph.select(rows), eta[rows], goal[rows], q0[rows], p0[rows], r0[rows],
+                                               iters=repair.cfg.self_repair_iters, smooth=smooth, tol=tol, physics=terms, **sub)  # fmt: skip
+                    q0, p0, r0 = q0.clone(), p0.clone(), r0.clone()
+                    q0[rows], p0[rows], r0[rows] = qr, pr, rr
     if iters > 0:
         z = limit_logit(q0, lower, upper).clone().requires_grad_(True)
         pos = p0.clone().requires_grad_(True)
@@ -201,6 +214,6 @@ def optimize_motion(
             q0, p0, r0 = limit_clip(z, lower, upper), pos.detach(), r0 @ axis_angle_to_matrix(omega)
     with torch.no_grad():
         q = q0 * graph.revolute[:, None]
-        e = energy_terms(cfg, graph, q, p0, r0, eta, goal, fps, **gkw)["total"]
+        e = energy_terms(cfg, graph, q, p0, r0, eta, goal_in, fps, **gkw)["total"]  # against the goals as given
     log.debug("optimize_motion: %d Adam iterations, mean energy %.5f", iters, float(e.mean()))
     return {"q": q.detach(), "base_pos": p0.detach(), "base_rot": r0.detach(), "energy": e.detach()}

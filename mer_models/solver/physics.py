@@ -29,9 +29,11 @@ moves by ``a_j x (p - p_j)`` for every joint ``j`` at or above ``k``.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 import torch
 
 from mer_data.kinematics.collision import contact_points, pair_contacts, shape_points
@@ -49,14 +51,17 @@ class PhysicsConfig:
     w_anchor: float = 0.0
     w_swing: float = 0.0
     swing_clearance: float = 0.01
-    w_self: float = 0.0
+    w_self: float = 3.0
     self_margin: float = 0.005
     max_contacts: int = 8  # self-penetration rows per frame
+    self_repair_iters: int = 6  # > 0: the self term only in this many whole-window iterations after the solve, on the pairs it left interpenetrating
     w_speed: float = 1.0
     speed_fraction: float = 0.95  # joint speed held under this share of the URDF velocity limit
-    lock_blend: int = -1  # frames over which a stance foot's goals blend into and out of their anchor (-1: no lock)
+    lock_blend: int = 4  # frames over which a stance foot's goals blend into and out of their anchor (-1: no lock)
     coarse: bool = True  # also in the optimiser's coarse (key-frame) stage, not only in the fine one
+    feet_gap: float = 0.02  # the feet's goals kept this far apart beyond the target's foot width [m] (-1: off; PhysicsInputs.separate_feet)
     fine_iters: int = 8  # at least this many iterations of the fine (whole-window) stage (0: the optimiser's own)
+    feasible: bool = True  # after the solve: joint speed clamped, base lifted off the floor (mer_models.retarget.feasible)
 
 
 @dataclass(frozen=True)
@@ -74,11 +79,52 @@ class PhysicsInputs:
     fps: float
     cfg: PhysicsConfig = PhysicsConfig()
     ref_feet: tuple[tuple[int, ...], tuple[int, ...]] = ((), ())
+    pairs: Any = None  # (K, 2) the shape pairs the self term looks at (None: those near at the first iterate)
+    pair_mask: Any = None  # (B, K) bool: which of ``pairs`` each sample's self term looks at (None: all)
+    ref_knees: tuple[int, int] = (-1, -1)  # the reference's knee nodes (-1: none)
+
+    @classmethod
+    def of_reference(cls, model: Any, contacts: torch.Tensor | None, fps: float, cfg: PhysicsConfig, ref: Any) -> "PhysicsInputs":
+        """The inputs for a reference of skeleton ``ref`` (its sole and knee nodes looked up here)."""
+        from mer_data.motion.contacts import sole_points
+
+        sp = sole_points(ref)
+        knees = (ref.keypoints.get("left_knee", -1), ref.keypoints.get("right_knee", -1))
+        return cls(model, contacts, fps, cfg, (tuple(sp["left"]), tuple(sp["right"])), ref_knees=knees)
 
     def frames(self, idx: torch.Tensor, stride: int) -> "PhysicsInputs":
         """The same for every ``stride``-th frame ``idx`` (a coarse solve)."""
         c = None if self.contacts is None else self.contacts[:, idx]
-        return PhysicsInputs(self.model, c, self.fps / stride, self.cfg, self.ref_feet)
+        return dataclasses.replace(self, contacts=c, fps=self.fps / stride)
+
+    @property
+    def repairs(self) -> bool:
+        """The self term runs as a repair after the solve (``cfg.self_repair_iters``), not in it."""
+        return self.cfg.w_self > 0 and self.cfg.self_repair_iters > 0
+
+    def main(self) -> "PhysicsInputs":
+        """The terms of the main solve: without the self term where it runs as a repair."""
+        return dataclasses.replace(self, cfg=dataclasses.replace(self.cfg, w_self=0.0)) if self.repairs else self
+
+    def repair(self, pos: torch.Tensor, rot: torch.Tensor) -> tuple[torch.Tensor, "PhysicsInputs"] | None:
+        """The repair iterations' samples and terms for a solution with node poses ``pos`` (B, T, J, 3),
+        ``rot`` (B, T, J, 3, 3): the samples with a pair interpenetrating (by more than
+        ``cfg.self_margin`` / 2) in some frame, (N,) indices, and the terms of those samples with
+        the self term on those pairs, each sample on its own (its result does not depend on the
+        rest of the batch); None when no sample has one."""
+        from mer_data.kinematics.collision import pair_depths
+
+        if not self.repairs or not len(self.model.pairs):
+            return None
+        d = pair_depths(self.model, pos, rot, which=SELF_POINTS)  # (B, T, K)
+        bad = (d > 0.5 * self.cfg.self_margin).any(1)  # (B, K)
+        any_pair = bad.any(0)
+        rows = bad.any(1).nonzero().flatten()
+        if not len(rows):
+            return None
+        contacts = None if self.contacts is None else self.contacts[rows.to(self.contacts.device)]
+        pairs = torch.as_tensor(self.model.pairs, device=pos.device)[any_pair]
+        return rows, dataclasses.replace(self, contacts=contacts, pairs=pairs, pair_mask=bad[rows][:, any_pair])
 
     def lock_goals(self, goal: torch.Tensor) -> torch.Tensor:
         """The position goals (B, T, Jr, 3) with each stance foot's sole points (``ref_feet``: the
@@ -97,16 +143,71 @@ class PhysicsInputs:
                 out[:, :, n, :2] = w * _anchor(xy, down) + (1 - w) * xy
         return out
 
+    def separate_feet(self, goal: torch.Tensor, heading: torch.Tensor) -> torch.Tensor:
+        """The position goals (B, T, Jr, 3) with the feet at least the target's foot width apart.
+
+        Per frame, in the heading frame of ``heading`` (B, T, 3, 3) (the reference base's x axis
+        in the floor plane): where the two ankles' goals are side by side (closer along the heading
+        than the target's foot length) and closer across it than the target's foot width plus
+        ``cfg.feet_gap``, each foot's sole goals move out by half the shortfall (the knees by a
+        quarter). Segment scaling keeps a source's leg adduction, so a robot with wide feet on a
+        narrow pelvis (TALOS, Valkyrie) would otherwise be asked to put one foot through the other.
+        """
+        width, length = foot_extent(self.model)
+        (lf, rf), (lk, rk) = self.ref_feet, self.ref_knees
+        if self.cfg.feet_gap < 0 or not lf or not rf or width <= 0:
+            return goal
+        fwd = heading[..., :, 0].clone()
+        fwd[..., 2] = 0
+        fwd = fwd / fwd.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+        lat = torch.stack([-fwd[..., 1], fwd[..., 0], torch.zeros_like(fwd[..., 0])], -1)  # z x forward: to the left
+        d = goal[:, :, lf[0]] - goal[:, :, rf[0]]
+        sep, along = (d * lat).sum(-1), (d * fwd).sum(-1)
+        side = ((length - along.abs()) / (0.25 * length)).clamp(0, 1)  # 1: side by side, 0: one ahead of the other
+        push = (0.5 * (width + self.cfg.feet_gap - sep)).clamp_min(0) * side  # (B, T)
+        if not bool((push > 0).any()):
+            return goal
+        out = goal.clone()
+        step = push[..., None] * lat
+        for nodes, sign in ((lf, 1.0), (rf, -1.0)):
+            for n in nodes:
+                out[:, :, n] += sign * step
+        for n, sign in ((lk, 1.0), (rk, -1.0)):
+            if n >= 0:
+                out[:, :, n] += 0.5 * sign * step
+        return out
+
     def build(self, problem: Any, w_kp: float) -> "Physics":
         """The terms for a solver's problem (:class:`mer_models.solver.ik._Problem`)."""
         from .ik import ancestors
 
         g = problem.graph
         contacts = None if self.contacts is None else self.contacts.to(problem.dev)
-        return Physics(self.cfg, w_kp, self.model, contacts, problem.fold, ancestors(g.parents), g.axes.to(problem.dtype), self.fps)
+        phys = Physics(self.cfg, w_kp, self.model, contacts, problem.fold, ancestors(g.parents), g.axes.to(problem.dtype), self.fps)
+        if self.pairs is not None:
+            phys._near_pairs = torch.as_tensor(self.pairs, device=problem.dev).reshape(-1, 2)
+            phys._pair_mask = None if self.pair_mask is None else torch.as_tensor(self.pair_mask, device=problem.dev)
+        return phys
+
+
+def foot_extent(model: Any) -> tuple[float, float]:
+    """The target's foot width and length [m]: the widest foot's collision vertices across and
+    along the root frame's y and x at the zero pose (node frames are root-aligned there); 0 without feet."""
+    foot = np.asarray(model.foot)
+    width = length = 0.0
+    for side in (1, 2):
+        shapes = np.flatnonzero(foot == side)
+        if not len(shapes):
+            continue
+        v = np.concatenate([np.asarray(model.vertices[s]) for s in shapes])
+        v = v[np.isfinite(v).all(1)]
+        if len(v):
+            width, length = max(width, float(np.ptp(v[:, 1]))), max(length, float(np.ptp(v[:, 0])))
+    return width, length
 
 
 SELF_REACH_M = 0.05  # pairs further apart than this at a solve's first iterate are not looked at in it
+SELF_POINTS = "vertices"  # the solver's self-penetration search looks at hull vertices only (the metrics also at edge points)
 FLOOR_VERTICES = 4  # per shape, the lowest this many vertices are held above the floor
 
 
@@ -153,6 +254,7 @@ class Physics:
                  anc: torch.Tensor, axes: torch.Tensor, fps: float = 30.0) -> None:  # fmt: skip
         self.cfg, self.model, self.fps, self.w_kp = cfg, model, fps, w_kp
         self._near_pairs: torch.Tensor | None = None
+        self._pair_mask: torch.Tensor | None = None  # (B, K) of _near_pairs, preset with them
         self.feet_on = any(getattr(cfg, k) > 0 for k in ("w_stance", "w_flat", "w_anchor", "w_swing"))
         self.verts = torch.as_tensor(model.vertices, dtype=fold.dtype, device=fold.device)
         self.center = torch.as_tensor(model.center, dtype=fold.dtype, device=fold.device)
@@ -181,12 +283,12 @@ class Physics:
                 from mer_data.kinematics.collision import pair_depths
 
                 with torch.no_grad():
-                    d = pair_depths(self.model, pos, rot, margin=self.cfg.self_margin + SELF_REACH_M)
+                    d = pair_depths(self.model, pos, rot, margin=self.cfg.self_margin + SELF_REACH_M, which=SELF_POINTS)
                 near = (d > -(self.cfg.self_margin + SELF_REACH_M)).flatten(0, -2).any(0)
                 self._near_pairs = torch.as_tensor(self.model.pairs, device=pos.device)[near]
             state["pairs"] = self._near_pairs
             found = pair_contacts(self.model, pos, rot, margin=self.cfg.self_margin, top=self.cfg.max_contacts,
-                                  pairs=self._near_pairs) if len(self._near_pairs) else None  # fmt: skip
+                                  pairs=self._near_pairs, which=SELF_POINTS, mask=self._pair_mask) if len(self._near_pairs) else None  # fmt: skip
             state["self"] = None if found is None else found[0]  # the (frame, pair) entries of this iteration
         if self.contacts is not None:
             state["anchor"] = [_anchor(pos[:, :, n, :2], self.contacts[..., i]) if n >= 0 else None
@@ -253,7 +355,7 @@ class Physics:
                     col_w.append(self.sw["w_flat"] * down)
         # self-penetration: the deepest points
         entries = state.get("self")  # the contacts found at this iteration's start, measured at this pose
-        ca = contact_points(self.model, pos, rot, entries, c.max_contacts) if c.w_self > 0 and entries is not None else None
+        ca = contact_points(self.model, pos, rot, entries, c.max_contacts, SELF_POINTS) if c.w_self > 0 and entries is not None else None
         if ca is not None:
             depth, pt, normal, na, nb = ca  # (B, T, K) ...
             active = (depth > -c.self_margin).to(dtype)

@@ -37,9 +37,11 @@ from mer_data.motion.samples import collate
 from mer_data.shards.dataset import ShardDataset
 from mer_data.shards.teacher import TEACHER_FORMAT, TEACHER_VERSION, teacher_path
 from mer_models.config import EnergyConfig
+from mer_models.retarget.clip import MODEL_FPS, geometry_of
 from mer_models.retarget.inference import optimize_batch
 from mer_models.solver.ik import DEFAULT_SMOOTH
 from mer_models.solver.optimize import DEFAULT_GN_ITERS, FINE_OF_VERSION, OPTIMIZER_VERSION
+from mer_models.solver.physics import PhysicsConfig
 
 log = logging.getLogger(__name__)
 
@@ -59,6 +61,9 @@ class SolverConfig:
             goals is solved again).
         optimizer_version: the optimiser's schedule (:data:`mer_models.solver.optimize.OPTIMIZER_VERSION`;
             1 solves as the teachers written before version 2 did).
+        physics: the optimiser's physical terms (:mod:`mer_models.solver.physics`, as ``mer retarget``
+            by default), on the samples whose target is a registered robot as it is (augmented
+            variants have no collision geometry of their own and are solved without); None: off.
         batch: windows solved together.
     """
 
@@ -68,6 +73,7 @@ class SolverConfig:
     smooth: float = DEFAULT_SMOOTH
     scaling_version: int = SCALING_VERSION
     optimizer_version: int = OPTIMIZER_VERSION
+    physics: PhysicsConfig | None = PhysicsConfig()
     batch: int = 64
 
     def __post_init__(self) -> None:
@@ -189,6 +195,42 @@ def solve_shards(
     return records
 
 
+def _solve_samples(samples: list, solver: SolverConfig, device: str) -> tuple[np.ndarray, ...]:
+    """The optimiser on samples of one target robot: angles (N, T, J), base positions (N, T, 3),
+    base rotation vectors (N, T, 3) and energies (N,). With ``solver.physics``, the samples are
+    grouped by reference skeleton and by whether the target has its robot's collision geometry
+    (the physical terms need both)."""
+    groups: dict[tuple, list[int]] = {}
+    geoms: dict[str, object] = {}
+    for i, smp in enumerate(samples):
+        geo = None
+        if solver.physics is not None:
+            fp = smp.target_skeleton.fingerprint
+            if fp not in geoms:
+                geoms[fp] = geometry_of(smp.target_skeleton)
+            geo = geoms[fp]
+        groups.setdefault((smp.reference_skeleton.fingerprint, id(geo) if geo is not None else None), []).append(i)
+    out: list = [None] * 4
+    for idx in groups.values():
+        group = [samples[i] for i in idx]
+        geo = geoms.get(group[0].target_skeleton.fingerprint) if solver.physics is not None else None
+        kw = {"physics": solver.physics, "geometry": geo, "ref_skeleton": group[0].reference_skeleton, "fps": MODEL_FPS,
+              "target_skeleton": group[0].target_skeleton} if geo is not None else {}  # fmt: skip
+        motion = optimize_batch(solver.energy, collate(group, scaling=solver.scaling), gn_iters=solver.gn_iters,
+                                smooth=solver.smooth, fine=FINE_OF_VERSION[solver.optimizer_version], device=device, **kw)  # fmt: skip
+        vals = (motion["q"].float().cpu().numpy(), motion["base_pos"].float().cpu().numpy(),
+                matrix_to_axis_angle(motion["base_rot"].float()).cpu().numpy(), motion["energy"].float().cpu().numpy())  # fmt: skip
+        for k, v in enumerate(vals):
+            if out[k] is None:
+                out[k] = np.zeros((len(samples), *v.shape[1:]), v.dtype)
+            if k == 0 and v.shape[-1] != out[0].shape[-1]:  # padded to the widest group
+                width = max(v.shape[-1], out[0].shape[-1])
+                out[0] = np.pad(out[0], [(0, 0)] * (out[0].ndim - 1) + [(0, width - out[0].shape[-1])])
+                v = np.pad(v, [(0, 0)] * (v.ndim - 1) + [(0, width - v.shape[-1])])
+            out[k][idx] = v
+    return tuple(out)
+
+
 def _solve_file(ds: ShardDataset, fi: int, final: Path, solver: SolverConfig, device: str, progress, done_before: int, total: int) -> dict:
     meta = ds.files[fi].meta
     S, T = meta.samples_per_row, meta.window
@@ -206,13 +248,8 @@ def _solve_file(ds: ShardDataset, fi: int, final: Path, solver: SolverConfig, de
                 part = todo[a : a + solver.batch]
                 samples = [ds.slot_sample(fi, r, k) for r, k in part]
                 t0 = time.perf_counter()
-                motion = optimize_batch(solver.energy, collate(samples, scaling=solver.scaling), gn_iters=solver.gn_iters,
-                                        smooth=solver.smooth, fine=FINE_OF_VERSION[solver.optimizer_version], device=device)
+                q, pos, rv, en = _solve_samples(samples, solver, device)
                 dt = time.perf_counter() - t0
-                q = motion["q"].float().cpu().numpy()
-                pos = motion["base_pos"].float().cpu().numpy()
-                rv = matrix_to_axis_angle(motion["base_rot"].float()).cpu().numpy()
-                en = motion["energy"].float().cpu().numpy()
                 if not (np.isfinite(q).all() and np.isfinite(pos).all() and np.isfinite(rv).all()):
                     raise MerError(f"the optimiser returned non-finite values for target {t_name}", path=ds.paths[fi],
                                    fix="check the shard with mer shards inspect; report it with the shard file")  # fmt: skip

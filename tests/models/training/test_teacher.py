@@ -51,19 +51,29 @@ def test_solve_writes_one_complete_teacher_file_per_shard(solved):
 
 
 def test_teacher_sample_is_the_optimisers_solution(solved):
-    """What training reads equals solving the same samples again (FK at load, mimic applied)."""
+    """What training reads equals solving the same samples again, one by one (FK at load, mimic
+    applied): with the physical terms where the target is the registered robot as it is, without
+    them for an augmented variant (it has no collision geometry of its own)."""
+    from mer_data.robots.collision import collision_model
+    from mer_data.robots.registry import load_robot
+    from mer_models.batch import batch_features, graph_from_batch
+    from mer_models.solver.physics import PhysicsConfig
+
     ds = ShardDataset(solved)
     idx = [i for i in range(len(ds)) if ds[i].provenance["target"] == "h1"][:3]  # variant 0 and augmented
     samples = [ds[i] for i in idx]
     assert all(s.teacher is not None for s in samples) and any(s.provenance["augmented"] for s in samples)
-    batch = collate(samples)
-    again = optimize_batch(EnergyConfig(), batch, gn_iters=GN)
-    from mer_models.batch import batch_features, graph_from_batch
-
-    feats = batch_features(graph_from_batch(batch, "tgt", "cpu"), again["q"], again["base_pos"], again["base_rot"])
-    torch.testing.assert_close(batch["teacher"], feats, atol=2e-4, rtol=0)
-    e = [s.provenance["teacher_energy"] for s in samples]
-    np.testing.assert_allclose(e, again["energy"].numpy(), rtol=1e-3)
+    assert not all(s.provenance["augmented"] for s in samples)
+    h1 = load_robot("h1")
+    for s in samples:
+        batch = collate([s])
+        kw = {} if s.provenance["augmented"] else {
+            "physics": PhysicsConfig(), "geometry": collision_model(h1), "ref_skeleton": s.reference_skeleton, "fps": 30.0,
+            "target_skeleton": s.target_skeleton}  # fmt: skip
+        again = optimize_batch(EnergyConfig(), batch, gn_iters=GN, **kw)
+        feats = batch_features(graph_from_batch(batch, "tgt", "cpu"), again["q"], again["base_pos"], again["base_rot"])
+        torch.testing.assert_close(batch["teacher"], feats, atol=2e-4, rtol=0)
+        np.testing.assert_allclose(s.provenance["teacher_energy"], again["energy"].numpy()[0], rtol=1e-3)
 
 
 def test_training_reads_x_from_the_teacher(solved):
@@ -89,7 +99,7 @@ def test_a_killed_solve_resumes_and_gives_the_same_file(solved, tmp_path, monkey
     import mer_models.training.teacher as teacher
 
     calls = {"n": 0}
-    real = teacher.optimize_batch
+    real = teacher._solve_samples  # once per batch
 
     def dies_on_second(*a, **k):
         calls["n"] += 1
@@ -97,7 +107,7 @@ def test_a_killed_solve_resumes_and_gives_the_same_file(solved, tmp_path, monkey
             raise KeyboardInterrupt
         return real(*a, **k)
 
-    monkeypatch.setattr(teacher, "optimize_batch", dies_on_second)
+    monkeypatch.setattr(teacher, "_solve_samples", dies_on_second)
     with pytest.raises(KeyboardInterrupt):
         solve_shards(out, solver=SolverConfig(gn_iters=GN, batch=3))
     shard = next(out.glob("*.h5"))
@@ -106,7 +116,7 @@ def test_a_killed_solve_resumes_and_gives_the_same_file(solved, tmp_path, monkey
     assert not final.exists() and partial.exists()  # nothing under the final name until complete
     with h5py.File(partial) as f:
         assert 0 < f["solved"][()].sum() < f["solved"].size
-    monkeypatch.setattr(teacher, "optimize_batch", real)
+    monkeypatch.setattr(teacher, "_solve_samples", real)
     rec = solve_shards(out, solver=SolverConfig(gn_iters=GN, batch=3))
     assert rec[0]["status"] == "solved" and final.exists() and not partial.exists()
     with h5py.File(final) as a, h5py.File(teacher_path(next(solved.glob("*.h5")))) as b:
@@ -185,10 +195,12 @@ def test_the_teacher_solves_with_the_schedule_it_records(solved, tmp_path):
         SolverConfig(optimizer_version=3)
     out = tmp_path / "v1"
     shutil.copytree(solved, out)
-    assert main(["shards", "solve", str(out), "--gn-iters", str(GN), "--optimizer-version", "1", "--batch", "3", "--quiet"]) == 1  # refused: v2 there
-    assert main(["shards", "solve", str(out), "--gn-iters", str(GN), "--optimizer-version", "1", "--batch", "3", "--quiet", "--force"]) == 0
+    assert main(["shards", "solve", str(out), "--gn-iters", str(GN), "--optimizer-version", "1", "--batch", "3", "--quiet",
+                 "--no-physics"]) == 1  # refused: v2 there (and with the physical terms)
+    assert main(["shards", "solve", str(out), "--gn-iters", str(GN), "--optimizer-version", "1", "--batch", "3", "--quiet", "--force",
+                 "--no-physics"]) == 0  # the schedule alone, without the physical terms
     ds = ShardDataset(out)
-    assert ds.teachers[0].solver["optimizer_version"] == 1
+    assert ds.teachers[0].solver["optimizer_version"] == 1 and ds.teachers[0].solver["physics"] is None
     idx = [i for i in range(len(ds)) if ds[i].provenance["target"] == "h1"][:3]
     batch = collate([ds[i] for i in idx])
     from mer_models.batch import batch_features, graph_from_batch
