@@ -432,3 +432,87 @@ def test_the_valid_bvh_reads_into_a_human():
 @given(data=bvh_inputs())
 def test_fuzz_bvh_reader(data):
     _run("BVH", _read_bvh, data)
+
+
+# ---- shards from strangers (issue 41): MCAP bytes and HDF5 datasets -----------------------------
+
+
+@pytest.fixture(scope="module")
+def shard_files(tmp_path_factory) -> dict[str, bytes]:
+    """The bytes of one small valid shard per format (synthetic motion)."""
+    from mer_data.shards import BuildConfig, build_shards
+
+    root, out = tmp_path_factory.mktemp("fuzz_shards"), {}
+    for fmt, suffix in (("hdf5", "*.h5"), ("mcap", "*.mcap")):
+        cfg = BuildConfig(input="", robots=("g1",), targets=("g1", "h1"), synthetic=1, synthetic_seconds=2.5, augment=2,
+                          format=fmt, split="all")  # fmt: skip
+        build_shards(cfg, root / fmt)
+        out[fmt] = next((root / fmt).glob(suffix)).read_bytes()
+    return out
+
+
+def _read_shard(path: Path) -> None:
+    from mer_data.shards import ShardDataset
+
+    ds = ShardDataset(path, teacher=None)
+    for i in range(len(ds)):
+        s = ds[i]
+        assert np.isfinite(s.reference).all()
+
+
+@fuzz_settings(60)
+@given(data=st.data())
+def test_fuzz_mcap_shard_bytes(data, shard_files, tmp_path_factory):
+    """Flipped, overwritten and cut bytes of an MCAP shard: read as before, or a MerError (CRCs checked)."""
+    raw = bytearray(shard_files["mcap"])
+    for _ in range(data.draw(st.integers(1, 4))):
+        at = data.draw(st.integers(0, len(raw) - 1))
+        raw[at] = data.draw(st.integers(0, 255))
+    if data.draw(st.booleans()):
+        raw = raw[: data.draw(st.integers(8, len(raw)))]
+    p = tmp_path_factory.mktemp("mcap") / "s.mcap"
+    p.write_bytes(bytes(raw))
+    _run("MCAP shard", _read_shard, p)
+
+
+_H5_COLUMNS = ("pos", "q", "base_rotvec", "origin_xy", "start_frame", "sample_target", "sample_variant", "link_scales",
+               "dropped", "clip")  # fmt: skip
+_H5_DTYPES = ("<f4", "<f8", "<i2", "<i8", "|b1", "|S4", "<c8")
+
+
+@fuzz_settings(60)
+@given(data=st.data())
+def test_fuzz_hdf5_shard_datasets(data, shard_files, tmp_path_factory):
+    """A column replaced by one of another dtype, shape, value, link kind or storage: read or a MerError."""
+    import h5py
+
+    p = tmp_path_factory.mktemp("h5") / "s.h5"
+    p.write_bytes(shard_files["hdf5"])
+    name = data.draw(st.sampled_from(_H5_COLUMNS))
+    kind = data.draw(st.sampled_from(("dtype", "shape", "value", "soft", "external")))
+    with h5py.File(p, "r+") as f:
+        old = f[name]
+        shape, dtype = old.shape, old.dtype
+        if kind == "value" and dtype.kind in "fi":
+            a = old[...]
+            idx = tuple(data.draw(st.integers(0, n - 1)) for n in a.shape)
+            bad = [np.nan, np.inf, -1, 1e30] if dtype.kind == "f" else [-1, -(2**15), 2**15 - 1, 7]
+            a[idx] = data.draw(st.sampled_from(bad))
+            old[...] = a
+        elif kind == "soft":
+            f.move(name, name + "_moved")
+            f[name] = h5py.SoftLink("/" + name + "_moved")
+        elif kind == "external":
+            secret = p.with_name("secret.bin")
+            secret.write_bytes(b"\x00" * 4096)
+            del f[name]
+            f.create_dataset(name, shape=(1,), dtype="<f8", external=[(str(secret), 0, 8)])
+        else:
+            del f[name]
+            if kind == "dtype":
+                shape_new, dtype_new = shape, np.dtype(data.draw(st.sampled_from(_H5_DTYPES)))
+            else:
+                shape_new = tuple(data.draw(st.lists(st.integers(0, 5), min_size=0, max_size=4)))
+                dtype_new = dtype if dtype.kind != "O" else np.dtype("<f4")
+            f.create_dataset(name, shape=shape_new, dtype=dtype_new)
+    _run("HDF5 shard", _read_shard, p)

@@ -14,12 +14,14 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
-__all__ = ["Limit", "LIMITS", "limit", "too_big", "MAX_LENGTH_M", "MAX_NUMBER"]
+__all__ = ["Limit", "LIMITS", "limit", "too_big", "MAX_LENGTH_M", "MAX_NUMBER", "LINK_SCALE_RANGE"]
 
 #: Largest length accepted in a URDF origin, collision shape or key-point offset [m].
 MAX_LENGTH_M = 1e3
 #: Largest magnitude of any other number read from a URDF (angles, limits, axes, mimic factors).
 MAX_NUMBER = 1e6
+#: Plausible link scale factors stored in a shard (augmentation draws 0.5-2).
+LINK_SCALE_RANGE = (1e-2, 1e2)
 
 
 @dataclass(frozen=True)
@@ -59,6 +61,13 @@ LIMITS: dict[str, Limit] = {
         Limit("MER_MAX_BVH_LINE_BYTES", 2**20, "bytes", "length of one line of a BVH file"),
         Limit("MER_MAX_BVH_JOINTS", 1_000, "joints", "number of joints (and End Sites) in a BVH hierarchy"),
         Limit("MER_MAX_BVH_FRAMES", 2_000_000, "frames", "number of frames of a BVH motion"),
+        Limit("MER_MAX_SHARD_ROWS", 10_000_000, "rows", "declared number of rows (windows) of a shard or teacher file"),
+        Limit("MER_MAX_HDF5_ATTR_BYTES", 64 * 2**20, "bytes", "size of one HDF5 attribute (shard metadata)"),
+        Limit("MER_MAX_HDF5_CHUNK_BYTES", 16 * 2**20, "bytes", "decompressed size of one HDF5 chunk"),
+        Limit("MER_MAX_HDF5_READ_BYTES", 512 * 2**20, "bytes", "decompressed bytes of one read from an HDF5 dataset"),
+        Limit("MER_MAX_MCAP_CHUNK_BYTES", 64 * 2**20, "bytes", "decompressed size of one MCAP chunk"),
+        Limit("MER_MAX_MCAP_BYTES", 2 * 2**30, "bytes", "decompressed size of all the chunks of an MCAP shard"),
+        Limit("MER_MAX_MCAP_RECORDS", 10_000_000, "records", "number of records (messages included) of an MCAP shard"),
     )
 }
 

@@ -40,8 +40,9 @@ metres, z up, x forward) to rounding. The choices:
   ``Wrist``, else ``Hand`` (the human "hand" key point is the wrist, docs/decisions.md). This covers
   Bandai, LAFAN1, CMU, Mixamo, SMPL, CMU-ASF (``lfemur``) and 3ds Max biped (``Bip01 L Thigh``)
   names. A mapping (key point -> joint name), possibly partial, overrides; each limb must run down
-  the hierarchy (hip above knee above ankle above toe...). A key point sits on its joint's first
-  rotation node (or its site), so :func:`mer_data.motion.contacts.sole_points` finds the ankle and
+  the hierarchy (hip above knee above ankle above toe...). A key point sits on its joint's last
+  rotation node (or its site), whose frame is the joint's whole frame (what orientation goals of
+  feet and hands compare), at the joint's position, so :func:`mer_data.motion.contacts.sole_points` finds the ankle and
   toe of each foot as on a robot.
 * **Other fields**: ``link_names`` the BVH joint each node moves with (sites: the joint carrying
   them, as for robots); ``urdf_joint_names`` the node name of revolute nodes, None for base and
@@ -78,6 +79,7 @@ __all__ = [
     "assign_keypoints",
     "keypoint_table",
     "base_joint",
+    "standing_frame",
     "folded_translations",
     "human_skeleton",
     "human_motion",
@@ -312,6 +314,39 @@ class _Nodes:
         return len(self.names) - 1
 
 
+def standing_frame(bvh: BvhMotion, keypoints: Mapping[str, str] | None = None, grid_fps: float = 30.0) -> int:
+    """The frame in which the human stands most neutrally: legs straight, trunk upright, feet level,
+    arms down (the sum of the knee bends, the trunk's tilt, half the arms' angles from hanging [rad],
+    and 10 x the ankles' height difference [m]), among the frames on the ``grid_fps`` grid where the
+    file's rate is a multiple of it (so the same motion at 30 or 120 Hz picks the same instant).
+
+    Used as the zero pose of a clip whose rest pose is not a standing one (``rest_frame``): scaling
+    reads the standing heights, trunk frame and limb directions there (:mod:`mer_data.kinematics.scaling`).
+    """
+    choice = assign_keypoints(bvh, keypoints)
+    step = bvh.fps / grid_fps
+    frames = np.arange(0, bvh.num_frames, int(round(step))) if step >= 1 and abs(step - round(step)) < 1e-6 else np.arange(bvh.num_frames)
+    pos = bvh.positions(frames)
+
+    def at(k: str) -> np.ndarray:
+        return pos[:, bvh.index(choice[k].joint)]
+
+    def angle(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        c = (u * v).sum(-1) / np.maximum(np.linalg.norm(u, axis=-1) * np.linalg.norm(v, axis=-1), 1e-9)
+        return np.arccos(np.clip(c, -1.0, 1.0))
+
+    down = np.array([0.0, 0.0, -1.0])
+    score = np.zeros(len(frames))
+    for side in ("left", "right"):
+        hip, knee, ankle = at(f"{side}_hip"), at(f"{side}_knee"), at(f"{side}_ankle")
+        score += angle(knee - hip, ankle - knee)  # knee bend
+        score += 0.5 * angle(at(f"{side}_elbow") - at(f"{side}_shoulder"), down)  # arm raised
+    trunk = 0.5 * (at("left_shoulder") + at("right_shoulder")) - 0.5 * (at("left_hip") + at("right_hip"))
+    score += angle(trunk, -down)
+    score += 10.0 * np.abs(at("left_ankle")[:, 2] - at("right_ankle")[:, 2])
+    return int(frames[int(np.argmin(score))])
+
+
 def human_skeleton(
     bvh: BvhMotion,
     *,
@@ -354,7 +389,7 @@ def human_skeleton(
             Q_next = Q @ axis_rotation(axis, q0[col])
             node = nodes.add(f"{j.name}:{j.channels[col - j.column]}", "revolute", node, Q[:, "xyz".index(axis)],
                              where[k], Q_next, j.name)  # fmt: skip
-            at.setdefault(k, node)
+            at[k] = node  # a key point sits on its joint's last rotation node: the joint's whole frame (orientation goals)
             Q = Q_next
         if not j.rotation_channels:
             sites.append((k, node, Q))
@@ -416,13 +451,10 @@ def _warn_if_not_standing(bvh: BvhMotion, skel: Skeleton, rest_frame: int | None
 
 
 def bvh_nodes(skel: Skeleton) -> dict[str, int]:
-    """BVH joint / End Site name -> the node at its position (base, first rotation node, or site)."""
+    """BVH joint / End Site name -> its node (base, last rotation node: the joint's whole frame, or site)."""
     out = {skel.node_names[0]: 0}
     for n in range(1, skel.num_nodes):
-        if skel.node_kinds[n] == "site":
-            out[skel.node_names[n]] = n
-        else:
-            out.setdefault(skel.link_names[n], n)
+        out[skel.node_names[n] if skel.node_kinds[n] == "site" else skel.link_names[n]] = n
     return out
 
 

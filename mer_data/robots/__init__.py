@@ -6,6 +6,7 @@
 * :mod:`.keypoints` and :mod:`.keypoint_body` - proposing the 14 key points of an unknown robot;
 * :mod:`.register` (``mer robots register``), :mod:`.registry` (name -> :class:`~.registry.Robot`),
   :mod:`.location` (where user robots live), :mod:`.table` (``mer robots show``);
+* :mod:`.articulation` - the robot's own articulation as a simulator loads it, in each tracker's order;
 * :mod:`.example` - the small humanoid ``mer demo`` registers;
 * ``builtin/<name>/`` - the 8 built-in robots' URDFs, cards and licences (package data).
 

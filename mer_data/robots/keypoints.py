@@ -60,13 +60,24 @@ _NAMES = {
 
 @dataclass(frozen=True)
 class KeypointProposal:
-    """A proposed key point (``spec`` None when absent) and how sure the proposal is."""
+    """A proposed key point (``spec`` None when absent) and how sure the proposal is.
+
+    ``by_design`` marks an absence that is the answer, not a failure to find one: a point foot or a
+    wheel has no toe, a robot whose only limb on a side is its leg has no arm there. Such key points
+    are not worth checking (:attr:`needs_check`).
+    """
 
     key: str
     spec: KeypointSpec | None
-    confidence: str  # "high" | "medium" | "low" | "absent"
+    confidence: str  # "high" | "medium" | "low" | "absent" ("given": from the user's key-point file)
     reason: str
     position: tuple[float, float, float] | None = None  # zero pose, root frame [m]
+    by_design: bool = False
+
+    @property
+    def needs_check(self) -> bool:
+        """Worth a look before use: an estimate (``low``), or absent where the robot may well have one."""
+        return self.confidence == "low" or (self.confidence == "absent" and not self.by_design)
 
 
 @dataclass(frozen=True)
@@ -110,7 +121,7 @@ def propose_robot(urdf: UrdfModel, locked: dict[str, float] | None = None) -> Ro
         legs, arms, quad_side = _split_legs_arms(mine)
         quad |= quad_side
         _propose_leg(out, side, legs[0] if legs else None, body)
-        _propose_arm(out, side, arms[0] if arms else None, body, quad_side)
+        _propose_arm(out, side, arms[0] if arms else None, body, quad_side, legs_only=bool(legs) and not arms)
     if quad:
         notes.append("quadruped: hind legs are the legs, front legs stand in for the arms (hip → shoulder, knee → elbow, foot → hand)")
     return RobotProposal({k: _in_root_frame(out[k], body) for k in KEYPOINTS}, fingers, tuple(notes))
@@ -128,7 +139,7 @@ def _in_root_frame(p: KeypointProposal, body: Body) -> KeypointProposal:
     if p.position is None or not body.flipped:
         return p
     x, y, z = p.position
-    return KeypointProposal(p.key, p.spec, p.confidence, p.reason, (-x, -y, z))
+    return KeypointProposal(p.key, p.spec, p.confidence, p.reason, (-x, -y, z), p.by_design)
 
 
 def _split_legs_arms(limbs: list[Limb]) -> tuple[list[Limb], list[Limb], bool]:
@@ -153,8 +164,9 @@ def _node(key: str, body: Body, n: int, confidence: str, reason: str) -> Keypoin
     return _kp(key, body, KeypointSpec(body.skel.link_names[n]), confidence, f"{body.skel.node_names[n]} ({reason})")
 
 
-def _absent(key: str, reason: str) -> KeypointProposal:
-    return KeypointProposal(key, None, "absent", reason)
+def _absent(key: str, reason: str, by_design: bool = False) -> KeypointProposal:
+    """An absent key point; ``by_design`` when the robot has no such part (nothing to check)."""
+    return KeypointProposal(key, None, "absent", reason, by_design=by_design)
 
 
 def _named(body: Body, nodes: list[int], kind: str) -> list[int]:
@@ -269,13 +281,13 @@ def _propose_leg(out: dict, side: str, limb: Limb | None, body: Body) -> None:
     out[keys[1]] = _node(keys[1], body, leg.knee, conf, f"knee{how}")
     if leg.ankle is None:
         out[keys[2]] = _absent(keys[2], "the leg ends at the knee with no foot frame or collision shape")
-        out[keys[3]] = _absent(keys[3], "no foot")
+        out[keys[3]] = _absent(keys[3], "point foot: no toe", by_design=True)
         return
     out[keys[2]] = _with(leg.ankle, conf if leg.kind == "foot" else "medium")
     if leg.kind == "point":
-        out[keys[3]] = _absent(keys[3], "point foot: the foot is the ankle key point")
+        out[keys[3]] = _absent(keys[3], "point foot: the foot is the ankle key point", by_design=True)
     elif leg.kind == "wheel":
-        out[keys[3]] = _absent(keys[3], "wheel foot: the wheel centre is the ankle key point")
+        out[keys[3]] = _absent(keys[3], "wheel foot: the wheel centre is the ankle key point", by_design=True)
     else:
         out[keys[3]] = _toe(keys[3], limb.joints[-1], body)
 
@@ -307,11 +319,15 @@ def _toe(key: str, ankle: int, body: Body) -> KeypointProposal:
 
 
 # ---- arms -----------------------------------------------------------------------------------
-def _propose_arm(out: dict, side: str, limb: Limb | None, body: Body, quad: bool) -> None:
+def _propose_arm(out: dict, side: str, limb: Limb | None, body: Body, quad: bool, legs_only: bool = False) -> None:
+    """Shoulder, elbow and hand of ``side``; ``legs_only``: the side's only limb is its leg (no arm by design)."""
     keys = [f"{side}_{k}" for k in ("shoulder", "elbow", "hand")]
     if limb is None or len(limb.joints) < 2:
         for k in keys:
-            out[k] = _absent(k, f"no {side} arm chain found")
+            if legs_only and limb is None:
+                out[k] = _absent(k, f"no {side} arm: the only {side} limb is the leg", by_design=True)
+            else:
+                out[k] = _absent(k, f"no {side} arm chain found")
         return
     if quad:  # front legs stand in for the arms: hip → shoulder, knee → elbow, foot → hand
         leg = _leg_points(limb, body, keys[2])

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -17,16 +18,16 @@ from mer_data.base.safe_io import decode_utf8, read_regular_file, safe_yaml_load
 from mer_data.skeleton import KEYPOINTS, Skeleton
 
 from .builder import build_skeleton
-from .card import DEFAULT_BODY_PARTS, RobotCard, parse_keypoints
+from .card import DEFAULT_BODY_PARTS, KeypointSpec, RobotCard, parse_keypoints
 from .keypoints import KeypointProposal, propose_robot
 from .mjcf import description_format, expand_includes, load_mjcf
-from .registry import Robot, validate_robot_name, write_robot
+from .registry import CARD_FILE, Robot, validate_robot_name, write_robot
 from .shapes import COLLISION_FILE, CollisionFile, dump_collision, shapes_from_urdf
 from .urdf import UrdfModel, load_urdf
 
 log = logging.getLogger(__name__)
 
-__all__ = ["register_robot", "RegistrationReport", "parse_lock", "load_keypoints_file", "prismatic_locks"]
+__all__ = ["register_robot", "RegistrationReport", "parse_lock", "load_keypoints_file", "keypoints_yaml", "prismatic_locks"]
 
 
 @dataclass(frozen=True)
@@ -38,14 +39,24 @@ class RegistrationReport:
     """
 
     robot: Robot | None
-    proposals: dict[str, KeypointProposal] | None  # None when key points came from a file
+    proposals: dict[str, KeypointProposal] | None  # key points given in a file have confidence "given"
     warnings: list[str] = field(default_factory=list)
     skeleton: Skeleton | None = None
     card: RobotCard | None = None
     urdf_path: Path | None = None
     notes: list[str] = field(default_factory=list)
 
+    @property
+    def card_path(self) -> Path | None:
+        """Where the robot card was written (None on a dry run)."""
+        return None if self.robot is None else self.robot.folder / CARD_FILE
+
+    def to_check(self) -> list[str]:
+        """Key points worth a look: estimates (``low``) and absences that are not by design (not a point foot's toe)."""
+        return [k for k, p in (self.proposals or {}).items() if p.needs_check]
+
     def summary(self) -> str:
+        """What was registered, each key point with its confidence, what to check and where the card is."""
         s = self.skeleton if self.skeleton is not None else self.robot.skeleton
         sites = [n for n, k in zip(s.node_names, s.node_kinds) if k == "site"]
         mimic = [n for n, m in zip(s.node_names, s.mimic_source) if m >= 0]
@@ -63,18 +74,22 @@ class RegistrationReport:
             where = "absent" if node < 0 else f"{s.node_names[node]} ({s.node_kinds[node]})"
             if self.proposals is not None:
                 p = self.proposals[k]
-                lines.append(f"    {k:15s} {where:40s} [{p.confidence}] {p.reason}")
+                conf = f"{p.confidence}, by design" if p.by_design else p.confidence
+                lines.append(f"    {k:15s} {where:40s} [{conf}] {p.reason}")
             else:
                 lines.append(f"    {k:15s} {where}")
         lines.extend(f"  note: {n}" for n in self.notes)
-        if self.proposals is not None:
-            unsure = [k for k, p in self.proposals.items() if p.confidence in ("low", "absent")]
-            if unsure:
-                lines.append(
-                    f"  check: {', '.join(unsure)}. Correct them with --keypoints FILE "
-                    "(YAML: name: {link: LINK, offset: [x, y, z]} or null) and --force."
-                )
+        unsure = self.to_check()
+        if unsure:
+            lines.append(
+                f"  check: {', '.join(unsure)}. Correct them with --keypoints FILE and --force: a YAML file of "
+                "only the key points that change (name: {link: LINK, offset: [x, y, z]} or null), "
+                f"merged over this proposal" + (f"; `mer robots keypoints {s.name} --write FILE` writes the current set"
+                                                 if self.robot is not None else "")
+            )
         lines.extend(f"  warning: {w}" for w in self.warnings)
+        if self.card_path is not None:
+            lines.append(f"  robot card: {self.card_path}")
         return "\n".join(lines)
 
 
@@ -89,8 +104,12 @@ def parse_lock(text: str) -> tuple[str, float]:
         raise RobotCardError(f"--lock {text!r} is not JOINT=VALUE", fix="e.g. --lock hokuyo_joint=0") from None
 
 
-def load_keypoints_file(path: str | Path) -> dict:
-    """Key points from a YAML or JSON file: either the mapping itself or ``{keypoints: {...}}``."""
+def load_keypoints_file(path: str | Path) -> dict[str, KeypointSpec | None]:
+    """Key points from a YAML or JSON file: either the mapping itself or ``{keypoints: {...}}``.
+
+    Returns only the key points the file gives (``None`` for ``name: null``, absent); any subset
+    of the 14 is allowed: registration merges it over the proposal.
+    """
     path = Path(path)
     raw = read_regular_file(path, RobotCardError, "MER_MAX_CARD_BYTES", fix="check the path given to --keypoints")
     text = decode_utf8(raw, path, RobotCardError)
@@ -100,7 +119,59 @@ def load_keypoints_file(path: str | Path) -> dict:
         raise RobotCardError(f"cannot parse the key point file: {str(exc)[:300]}", path=path) from None
     if isinstance(data, dict) and "keypoints" in data:
         data = data["keypoints"]
-    return parse_keypoints(data, str(path))
+    if data is None or (isinstance(data, dict) and not data):
+        raise RobotCardError("the key point file gives no key point", path=path, element="keypoints",
+                             fix=f"give the key points that change, e.g. `left_toe: {{link: LINK, offset: [x, y, z]}}` "
+                             f"(names: {', '.join(KEYPOINTS)})")  # fmt: skip
+    parsed = parse_keypoints(data, str(path), require_all=False)
+    return {k: v for k, v in parsed.items() if k in data}
+
+
+def _tag(value: object) -> str:
+    """A YAML flow value for the key-point file, with lists inline."""
+    return yaml.safe_dump(value, default_flow_style=True, sort_keys=False, width=1000).strip()
+
+
+def keypoints_yaml(robot: Robot) -> str:
+    """The robot's 14 key points as an editable key-point file (``--keypoints FILE``), with a comment header.
+
+    Each line ends with a comment naming the skeleton node it is (a joint, or a site). Loading the
+    text with :func:`load_keypoints_file` gives the card's key points back exactly.
+    """
+    s = robot.skeleton
+    flag = "--mjcf" if description_format(robot.urdf_path) == "mjcf" else "--urdf"
+    if robot.builtin:
+        again = f"mer robots register my_{robot.name} {flag} {robot.urdf_path} --keypoints THIS_FILE"
+        why = f"{robot.name!r} is built in: register a copy under another name"
+    else:
+        m = re.search(r"registered from ([^,)]+)", robot.card.description)
+        again = f"mer robots register {robot.name} {flag} PATH/TO/{m.group(1) if m else robot.urdf_path.name} --keypoints THIS_FILE --force"
+        why = "Register it again from the file you registered it from (the registry keeps no meshes)"
+    lines = [
+        f"# Key points of robot {robot.name!r}: {robot.card.description or robot.urdf_path.name}",
+        "# Each is a link of the robot's description with an optional offset [m] in the link's frame, or null",
+        "# (the robot has none); the comment names the skeleton node it became. Edit what is wrong and",
+        "# register it again; a line you delete keeps the proposal's key point (a file of only the key points",
+        f"# that change is enough). {why}:",
+        f"#   {again}",
+    ]
+    rows = []
+    for k in KEYPOINTS:
+        spec = robot.card.keypoints.get(k)
+        node = s.keypoints[k]
+        if spec is None:
+            rows.append((k, "null", "absent"))
+            continue
+        d: dict[str, object] = {"link": spec.link}
+        if any(spec.offset):
+            d["offset"] = [float(x) for x in spec.offset]
+        if spec.note:
+            d["note"] = spec.note
+        rows.append((k, _tag(d), f"{s.node_names[node]} ({s.node_kinds[node]})" if node >= 0 else "absent"))
+    width = max(len(k) for k in KEYPOINTS) + 1
+    value_width = max(len(v) for _, v, _ in rows)
+    lines += [f"{k + ':':{width}s} {v:{value_width}s}  # {where}" for k, v, where in rows]
+    return "\n".join(lines) + "\n"
 
 
 def prismatic_locks(urdf: UrdfModel, locks: dict[str, float]) -> dict[str, float]:
@@ -156,15 +227,14 @@ def register_robot(
             "(mer's skeletons have turning joints only; --lock JOINT=VALUE holds one elsewhere)"
         )
     locks = {**sliding, **locks}
-    proposals = None
-    if keypoints_file is not None:
-        keypoints = load_keypoints_file(keypoints_file)
-    else:
-        proposal = propose_robot(urdf, locks)
-        proposals = proposal.keypoints
-        notes.extend(proposal.notes)
-        keypoints = {k: p.spec for k, p in proposals.items()}
-        locks = {**proposal.locked, **locks}  # the user's --lock wins
+    given = load_keypoints_file(keypoints_file) if keypoints_file is not None else {}
+    proposal = propose_robot(urdf, locks)
+    notes.extend(proposal.notes)
+    locks = {**proposal.locked, **locks}  # the user's --lock wins
+    proposals = dict(proposal.keypoints)
+    for k, spec in given.items():  # the file's key points win over the proposal
+        proposals[k] = KeypointProposal(k, spec, "given", f"from {Path(keypoints_file).name}")
+    keypoints = {k: proposals[k].spec for k in KEYPOINTS}
     card = RobotCard(
         name=name,
         urdf=urdf_path.name,

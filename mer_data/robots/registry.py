@@ -31,6 +31,7 @@ from pathlib import Path
 
 from mer_data.base.atomic import atomic_dir, recover_dir, sweep_stale, trash_dir
 from mer_data.base.errors import RegistryError, RobotCardError, RobotExistsError, UnknownRobotError
+from mer_data.base.suggest import close_matches, did_you_mean
 from mer_data.skeleton import Skeleton
 
 from .builder import build_skeleton
@@ -52,6 +53,8 @@ __all__ = [
     "write_robot",
     "unregister_robot",
     "validate_robot_name",
+    "lookup_name",
+    "known_names",
 ]
 
 BUILTIN_ROBOTS: tuple[str, ...] = ("g1", "h1", "h1_2", "atlas", "oli", "tron1", "talos", "valkyrie")
@@ -69,13 +72,23 @@ def mer_home() -> Path:
 
 
 def validate_robot_name(name: str) -> str:
-    """Names are lower-case identifiers: no path separators, no traversal out of the registry."""
+    """Names are lower-case identifiers: no path separators, no traversal out of the registry.
+
+    This is the rule for *registering* a name; looking one up ignores case (:func:`lookup_name`).
+    """
     if not isinstance(name, str) or not _NAME.match(name):
+        lower = name.lower() if isinstance(name, str) else None
+        hint = f" (robot names are lower-case: {lower!r})" if lower is not None and _NAME.match(lower) else ""
         raise RegistryError(
-            f"invalid robot name {name!r}",
+            f"invalid robot name {name!r}{hint}",
             fix="use 1-64 characters: a lower-case letter, then lower-case letters, digits, '_' or '-'",
         )
     return name
+
+
+def lookup_name(name: str) -> str:
+    """The registry's name for ``name`` as typed: case is ignored (``G1`` is ``g1``); validated."""
+    return validate_robot_name(name.lower() if isinstance(name, str) else name)
 
 
 @dataclass(frozen=True)
@@ -101,19 +114,26 @@ def _user_names() -> list[str]:
 
 
 def known_names() -> list[str]:
+    """Every robot name, built-ins first: folder names only, no card or description is read (fast)."""
     return list(BUILTIN_ROBOTS) + [n for n in _user_names() if n not in BUILTIN_ROBOTS]
 
 
 def _folder_of(name: str) -> tuple[Path, bool]:
+    """The folder of robot ``name`` (case ignored) and whether it is built in; UnknownRobotError otherwise."""
+    typed = name
+    name = name.lower() if isinstance(name, str) else name
     if name in BUILTIN_ROBOTS:
         return _BUILTIN_DIR / name, True
     validate_robot_name(name)
     folder = robots_dir() / name
     if (folder / CARD_FILE).is_file() or (recover_dir(folder) and (folder / CARD_FILE).is_file()):
         return folder, False
+    known = known_names()
+    hint = did_you_mean(typed, known)
+    register = f"register it with `mer robots register {name} --urdf ROBOT.urdf` (or --mjcf ROBOT.xml)"
     raise UnknownRobotError(
-        f"unknown robot {name!r}; known robots: {', '.join(known_names())}",
-        fix=f"register it with `mer robots register {name} --urdf ROBOT.urdf` (or --mjcf ROBOT.xml)",
+        f"unknown robot {typed!r}; " + (f"{hint} (known robots: {', '.join(known)})" if hint else f"known robots: {', '.join(known)}"),
+        fix=f"use {close_matches(typed, known)[0]!r}, or {register}" if hint else register,
     )
 
 
@@ -127,8 +147,12 @@ _lock = threading.Lock()
 
 
 def load_robot(name: str) -> Robot:
-    """Look a robot up by name (built-in or registered); cached per file modification times."""
+    """Look a robot up by name (built-in or registered; case ignored); cached per file modification times.
+
+    An unknown name raises :class:`UnknownRobotError` with the closest known names ("did you mean").
+    """
     folder, builtin = _folder_of(name)
+    name = folder.name  # the registry's own (lower-case) name, whatever case was typed
     card_path = folder / CARD_FILE
     key = (str(card_path), *(p.stat().st_mtime_ns for p in (card_path, *folder.glob("*.urdf"), *folder.glob("*.xml"))))
     with _lock:
@@ -247,7 +271,7 @@ def write_robot(
 
 def unregister_robot(name: str) -> Path:
     """Remove a user robot; returns the folder that was removed."""
-    if name in BUILTIN_ROBOTS:
+    if isinstance(name, str) and name.lower() in BUILTIN_ROBOTS:
         raise RegistryError(f"{name!r} is a built-in robot and cannot be unregistered")
     folder, _ = _folder_of(name)
     try:

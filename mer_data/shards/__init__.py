@@ -8,15 +8,27 @@ skeletons and joint maps, in HDF5 or MCAP (docs/shards.md).
   :func:`read_sidecar` (``mer_meta.json``, the metadata ``datasets.load_dataset`` does not read).
 """
 
-from .builder import BuildReport, build_shards
-from .card import render_card, write_card
-from .config import PAPER_TARGETS, BuildConfig
-from .dataset import ShardDataset, WindowRef
-from .hub import push_shards
-from .inspect import format_inspection, inspect_shards
-from .reader import find_shards, open_shard
-from .schema import FORMAT_VERSION, ShardMeta
-from .sidecar import META_FILE, Sidecar, read_sidecar, write_sidecar
+from importlib import import_module
+from typing import Any
+
+#: name -> the submodule defining it; imported on first use, so that ``import mer_data.shards.config``
+#: (the command line's defaults) does not import torch.
+_EXPORTS = {
+    "BuildReport": "builder", "build_shards": "builder", "render_card": "card", "write_card": "card",
+    "PAPER_TARGETS": "config", "BuildConfig": "config", "ShardDataset": "dataset", "WindowRef": "dataset",
+    "push_shards": "hub", "format_inspection": "inspect", "inspect_shards": "inspect", "find_shards": "reader",
+    "open_shard": "reader", "FORMAT_VERSION": "schema", "ShardMeta": "schema", "META_FILE": "sidecar",
+    "Sidecar": "sidecar", "read_sidecar": "sidecar", "write_sidecar": "sidecar",
+}  # fmt: skip
+
+
+def __getattr__(name: str) -> Any:
+    if name in _EXPORTS:
+        value = getattr(import_module(f".{_EXPORTS[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = [
     "BuildConfig",

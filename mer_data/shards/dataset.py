@@ -24,11 +24,13 @@ import numpy as np
 import torch
 
 from mer_data.base.errors import ShardFormatError
+from mer_data.base.limits import LINK_SCALE_RANGE, MAX_LENGTH_M
 from mer_data.motion.samples import TrainingSample
 from mer_data.motion.windows import window_features
 from mer_data.skeleton import KEYPOINTS, Skeleton
 
 from .augment import augmented_joint_map
+from .h5safe import require_values
 from .hub import resolve_hub_paths
 from .reader import PathsLike, ShardFile, find_shards, open_shard
 from .teacher import TeacherFile, teacher_features, teacher_path
@@ -36,6 +38,31 @@ from .teacher import TeacherFile, teacher_features, teacher_path
 __all__ = ["ShardDataset", "WindowRef"]
 
 _SMALL = ("robot", "clip", "start_frame", "source_sha256", "origin_xy", "sample_target", "sample_variant", "link_scales", "dropped")
+
+
+def check_columns(cols: dict[str, np.ndarray], meta, path: Path) -> None:
+    """Refuse per-row columns a reader would hand on wrong: sample slots not in the documented order
+    (slot ``k`` is target ``k // variants``, variant ``k % variants``), non-finite origins, link
+    scales outside :data:`~mer_data.base.limits.LINK_SCALE_RANGE`, negative start frames."""
+    V, K = meta.variants, meta.samples_per_row
+    k = np.arange(K)
+    for name, want in (("sample_target", k // V), ("sample_variant", k % V)):
+        a = np.asarray(cols[name])
+        bad = np.argwhere(a != want[None, :])
+        if len(bad):
+            r, s = (int(i) for i in bad[0])
+            raise ShardFormatError(f"{name} is {int(a[r, s])} at row {r}, slot {s}; the shard's layout needs {int(want[s])} "
+                                   f"({len(meta.targets)} targets x {V} variants)", path=path, element=f"dataset {name!r}",
+                                   fix="the file is damaged or hostile; rebuild it with mer")  # fmt: skip
+    require_values(cols["origin_xy"], "origin_xy", path=path, low=-1e9, high=1e9)
+    require_values(cols["link_scales"], "link_scales", path=path, low=LINK_SCALE_RANGE[0], high=LINK_SCALE_RANGE[1])
+    require_values(cols["start_frame"], "start_frame", path=path, low=0, high=2**53)
+    for name in ("robot", "clip", "source_sha256"):
+        if any(len(str(v)) > 4096 for v in cols[name]):
+            raise ShardFormatError(f"{name} holds a string longer than 4096 characters", path=path, element=f"dataset {name!r}")
+    if len(cols["robot"]) and set(map(str, cols["robot"])) != {meta.robot}:
+        raise ShardFormatError(f"rows of robots {sorted(set(map(str, cols['robot'])))}, the metadata says {meta.robot!r}",
+                               path=path, element="dataset 'robot'")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -89,6 +116,8 @@ class ShardDataset(torch.utils.data.Dataset):
                     )
         self._skels: dict[str, Skeleton] = {}
         self._cols: list[dict[str, np.ndarray]] = [{c: f.column(c) for c in _SMALL} for f in self.files]
+        for f, cols in zip(self.files, self._cols):
+            check_columns(cols, f.meta, f.path)
         self.windows: list[WindowRef] = []
         self._first: list[int] = []
         self._index: dict[tuple[str, str, int], int] = {}
@@ -206,7 +235,9 @@ class ShardDataset(torch.utils.data.Dataset):
         """(T, J, 9) float32 features of a stored window (see :func:`mer_data.motion.windows.window_features`)."""
         w = self.windows[window] if isinstance(window, int) else window
         f = self.files[w.file]
-        return window_features(f.row("pos", w.row), f.row("q", w.row), f.row("base_rotvec", w.row), f.meta.fps)
+        a = [require_values(f.row(c, w.row), c, path=f.path, row=w.row, low=-MAX_LENGTH_M, high=MAX_LENGTH_M)
+             for c in ("pos", "q", "base_rotvec")]  # fmt: skip
+        return window_features(a[0], a[1], a[2], f.meta.fps)
 
     def sample(self, window: WindowRef | int, target: str, variant: int = 0) -> TrainingSample:
         """The sample of ``window`` for ``target`` (by name) and ``variant`` (0: URDF skeleton)."""

@@ -18,6 +18,7 @@ Layout choices:
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping
 from pathlib import Path
 
 import h5py
@@ -25,6 +26,7 @@ import numpy as np
 
 from mer_data.base.errors import ShardFormatError
 
+from .h5safe import attr, dataset, open_h5, read
 from .schema import BIG_COLUMNS, COLUMNS, ShardMeta
 
 log = logging.getLogger(__name__)
@@ -53,7 +55,8 @@ class Hdf5ShardWriter:
         self.path = Path(path)
         self.meta = meta
         self.shapes = meta.shapes()
-        self.file = h5py.File(self.path, "w", libver=LIBVER)
+        # "x": created exclusively, so a symbolic link or a file planted under the name is never written through
+        self.file = h5py.File(self.path, "x", libver=LIBVER)
         self.rows = 0
         filt = _filters(compression)
         for name, dtype in COLUMNS.items():
@@ -88,21 +91,31 @@ class Hdf5ShardWriter:
 
     def append_piece(self, piece: str | Path) -> int:
         """Append every row of a piece file (same layout and filters); returns the number of rows."""
-        with h5py.File(piece, "r") as src:
-            n = src["start_frame"].shape[0]
+        src = Hdf5Shard(piece)
+        try:
+            n = src.num_rows
             if n == 0:
                 return 0
+            for name in COLUMNS:
+                if src.schema[name][1][1:] != self.shapes[name]:
+                    raise ShardFormatError(f"the piece's column {name} has rows of shape {src.schema[name][1][1:]}, "
+                                           f"expected {self.shapes[name]}", path=piece)  # fmt: skip
             start = self._grow(n)
             for name in COLUMNS:
-                s, d = src[name], self.file[name]
+                s, d = src._ds(name), self.file[name]
                 if name in BIG_COLUMNS:
+                    if s.chunks != d.chunks:
+                        raise ShardFormatError(f"the piece's column {name} has chunks {s.chunks}, expected {d.chunks}",
+                                               path=piece)  # fmt: skip
                     zeros = (0,) * (len(s.shape) - 1)
                     sid, did = s.id, d.id
                     for i in range(n):
                         mask, data = sid.read_direct_chunk((i,) + zeros)
                         did.write_direct_chunk((start + i,) + zeros, data, mask)
                 else:
-                    d[start : start + n] = s[...]
+                    d[start : start + n] = src._read(name)
+        finally:
+            src.close()
         return n
 
     def close(self, meta: ShardMeta | None = None) -> None:
@@ -123,54 +136,91 @@ class Hdf5ShardWriter:
 class ProcessLocalH5:
     """A read-only HDF5 file at ``self.path`` with one handle per process: opened on first use in
     each process (DataLoader workers fork or spawn after the parent opened it), closed by
-    :meth:`close`, pickled without the handle."""
+    :meth:`close`, pickled without the handle. Opened and read through :mod:`.h5safe`: datasets are
+    checked against :attr:`schema` (name -> (dtype, shape)) before their first read."""
 
     path: Path
+    what: str = "HDF5 file"
+    schema: dict[str, tuple[str, tuple[int | None, ...]]] = {}
     _file: h5py.File | None = None
     _pid: int = -1
+    _checked: dict[str, h5py.Dataset] | None = None
 
     def _f(self) -> h5py.File:
         import os
 
         if self._file is None or self._pid != os.getpid():
-            self._file = h5py.File(self.path, "r")
+            self._file = open_h5(self.path, what=self.what)
             self._pid = os.getpid()
+            self._checked = {}
         return self._file
+
+    def _ds(self, name: str) -> h5py.Dataset:
+        """The dataset ``name``, checked against :attr:`schema` (once per process)."""
+        f = self._f()
+        assert self._checked is not None
+        if name not in self._checked:
+            dtype, shape = self.schema[name]
+            self._checked[name] = dataset(f, name, dtype, shape, path=self.path)
+        return self._checked[name]
+
+    def _read(self, name: str, index: int | slice | tuple = slice(None)):
+        return read(self._ds(name), index, path=self.path)
 
     def close(self) -> None:
         if self._file is not None:
             self._file.close()
             self._file = None
+            self._checked = None
 
     def __getstate__(self):
         d = dict(self.__dict__)
-        d["_file"], d["_pid"] = None, -1
+        d["_file"], d["_pid"], d["_checked"] = None, -1, None
         return d
 
 
+class _LazyAttrs(Mapping):
+    """Root attributes read one at a time by name, bounded (:func:`.h5safe.attr`); absent: KeyError."""
+
+    def __init__(self, f: h5py.File, path: Path) -> None:
+        self.f, self.path = f, path
+
+    def __getitem__(self, k: str):
+        v = attr(self.f, k, path=self.path, default=None)
+        if v is None:
+            raise KeyError(k)
+        return v
+
+    def __iter__(self):
+        return iter(())
+
+    def __len__(self) -> int:
+        return 0
+
+
+def read_meta(f: h5py.File, path: Path) -> ShardMeta:
+    """The :class:`ShardMeta` of an open shard or piece (only the attributes it names are read)."""
+    return ShardMeta.from_attrs(_LazyAttrs(f, path), path)
+
+
 class Hdf5Shard(ProcessLocalH5):
-    """Read access to an HDF5 shard (opened lazily, once per process)."""
+    """Read access to an HDF5 shard (opened lazily, once per process; every read checked, :mod:`.h5safe`)."""
 
     format = "hdf5"
+    what = "HDF5 shard"
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
+        f = self._f()
         try:
-            with h5py.File(self.path, "r") as f:
-                self.meta = ShardMeta.from_attrs(dict(f.attrs), self.path)
-                missing = [c for c in COLUMNS if c not in f]
-                if missing:
-                    raise ShardFormatError(f"damaged shard: columns {missing} are missing", path=self.path)
-                rows = {f[c].shape[0] for c in COLUMNS}
-                if rows != {self.meta.num_rows}:
-                    raise ShardFormatError(
-                        f"damaged shard: column lengths {sorted(rows)}, metadata says {self.meta.num_rows}",
-                        path=self.path,
-                    )
-        except OSError as exc:
-            raise ShardFormatError(
-                f"cannot read the HDF5 shard ({exc})", path=self.path, fix="rebuild it with `mer shards build`"
-            ) from None
+            self.meta = read_meta(f, self.path)
+            shapes = self.meta.shapes()
+            self.schema = {c: (d, (self.meta.num_rows,) + shapes[c]) for c, d in COLUMNS.items()}
+            for c in COLUMNS:
+                self._ds(c)
+        except BaseException:
+            self.close()
+            raise
 
     @property
     def num_rows(self) -> int:
@@ -178,15 +228,12 @@ class Hdf5Shard(ProcessLocalH5):
 
     def column(self, name: str) -> np.ndarray:
         """A whole column (strings as an object array of ``str``)."""
-        d = self._f()[name]
-        return d.asstr()[...] if COLUMNS[name] == "str" else d[...]
+        return self._read(name)
 
     def row(self, name: str, i: int) -> np.ndarray:
         """Column ``name`` of row ``i`` (one chunk read for the big columns)."""
-        d = self._f()[name]
-        return d.asstr()[i] if COLUMNS[name] == "str" else d[i]
+        return self._read(name, int(i))
 
     def rows(self, start: int, stop: int) -> dict[str, np.ndarray]:
         """Rows ``start:stop`` of every column (a contiguous slice)."""
-        f = self._f()
-        return {c: (f[c].asstr()[start:stop] if COLUMNS[c] == "str" else f[c][start:stop]) for c in COLUMNS}
+        return {c: self._read(c, slice(start, stop)) for c in COLUMNS}

@@ -10,21 +10,33 @@
 * metadata record ``mer.shard``: :meth:`ShardMeta.to_attrs`, every value a string.
 
 Chunks are zstd-compressed. Reading loads the file's windows into memory (use HDF5 for large-scale
-random access during training).
+random access during training). Reading is bounded and checked (:func:`read_mcap`): every CRC is
+validated, chunks are decompressed by mer with the output capped at their declared (capped) size,
+and every window message is checked against the schema before it is decoded.
 """
 
 from __future__ import annotations
 
 import base64
+import binascii
+import io
 import json
+import struct
+import zlib
 from pathlib import Path
+from typing import Any, Iterator
 
+import lz4.frame
 import numpy as np
+import zstandard
 from mcap.exceptions import McapError
-from mcap.reader import make_reader
+from mcap.records import Channel, Chunk, McapRecord, Message, Metadata
+from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 
 from mer_data.base.errors import ShardFormatError
+from mer_data.base.limits import limit, too_big
+from mer_data.base.safe_io import check_regular_file
 from mer_data.skeleton import Skeleton
 
 from .foxglove import FRAME_TRANSFORMS_SCHEMA, SCENE_UPDATE_SCHEMA, frame_transforms, scene_update
@@ -87,7 +99,7 @@ class McapShardWriter:
         self.meta = meta
         self.shapes = meta.shapes()
         self.preview = preview
-        self._stream = open(self.path, "wb")
+        self._stream = open(self.path, "xb")  # exclusive: never through a planted link
         self.w = Writer(self._stream, compression=CompressionType.ZSTD)
         self.w.start(profile="", library="mer")
         sid = self.w.register_schema("mer.ShardWindow", "jsonschema", _WINDOW_SCHEMA)
@@ -145,19 +157,123 @@ class McapShardWriter:
             self.path.unlink(missing_ok=True)
 
 
+class _BoundedFile:
+    """A file read by the MCAP stream reader: a read past the end (a length field from a damaged or
+    hostile file) is refused before anything is allocated for it."""
+
+    def __init__(self, fh, size: int, path: Path) -> None:
+        self.fh, self.left, self.path = fh, size, path
+
+    def read(self, n: int = -1) -> bytes:
+        if n is None or n < 0 or n > self.left:
+            raise ShardFormatError(f"a record claims {n:,} bytes, past the end of the file ({self.left:,} bytes left)",
+                                   path=self.path, fix="the file is damaged or hostile; rebuild it with mer")  # fmt: skip
+        data = self.fh.read(n)
+        self.left -= len(data)
+        return data
+
+
+def _inflate(chunk: Chunk, path: Path) -> bytes:
+    """The chunk's records, decompressed with the output capped at its declared size (itself capped),
+    and checked against its CRC."""
+    size = chunk.uncompressed_size
+    if size > limit("MER_MAX_MCAP_CHUNK_BYTES"):
+        msg, fix = too_big("MER_MAX_MCAP_CHUNK_BYTES", size)
+        raise ShardFormatError(msg, path=path, element="MCAP chunk", fix=fix)
+    if chunk.compression == "zstd":
+        window = 1 << max(20, min(27, max(size, 1).bit_length()))
+        dec = zstandard.ZstdDecompressor(max_window_size=window)
+        try:
+            with dec.stream_reader(io.BytesIO(chunk.data), read_across_frames=True) as r:
+                parts, got = [], 0
+                while got <= size:
+                    b = r.read(size + 1 - got)
+                    if not b:
+                        break
+                    parts.append(b)
+                    got += len(b)
+            data = b"".join(parts)
+        except zstandard.ZstdError as exc:
+            raise ShardFormatError(f"an MCAP chunk is not valid zstd data ({exc})", path=path, element="MCAP chunk") from None
+    elif chunk.compression == "lz4":
+        try:
+            d = lz4.frame.LZ4FrameDecompressor()
+            data = d.decompress(chunk.data, max_length=size + 1)
+        except RuntimeError as exc:
+            raise ShardFormatError(f"an MCAP chunk is not valid lz4 data ({exc})", path=path, element="MCAP chunk") from None
+    elif chunk.compression == "":
+        data = chunk.data
+    else:
+        raise ShardFormatError(f"an MCAP chunk uses compression {chunk.compression!r}; mer reads zstd, lz4 and none",
+                               path=path, element="MCAP chunk")  # fmt: skip
+    if len(data) != size:
+        raise ShardFormatError(f"an MCAP chunk decompresses to {'more than ' if len(data) > size else ''}{len(data):,} bytes, "
+                               f"its header says {size:,}", path=path, element="MCAP chunk",
+                               fix="the file is damaged or hostile; rebuild it with mer")  # fmt: skip
+    if chunk.uncompressed_crc == 0:
+        raise ShardFormatError("an MCAP chunk carries no CRC; mer reads only checked chunks", path=path, element="MCAP chunk")
+    if zlib.crc32(data) != chunk.uncompressed_crc:
+        raise ShardFormatError("an MCAP chunk fails its CRC check (altered or damaged)", path=path, element="MCAP chunk",
+                               fix="download or rebuild the file")  # fmt: skip
+    return data
+
+
+def read_mcap(path: Path, *, messages: bool = True) -> Iterator[McapRecord]:
+    """Every record of an MCAP file, bounded and checked: CRCs validated (chunks, data section),
+    chunk sizes capped before decompression (``MER_MAX_MCAP_CHUNK_BYTES``, ``MER_MAX_MCAP_BYTES``),
+    records counted (``MER_MAX_MCAP_RECORDS``). ``messages=False`` skips chunks undecompressed."""
+    st = check_regular_file(path, ShardFormatError)
+    n, total = 0, 0
+    cap_n, cap_total = limit("MER_MAX_MCAP_RECORDS"), limit("MER_MAX_MCAP_BYTES")
+
+    def count() -> None:
+        nonlocal n
+        n += 1
+        if n > cap_n:
+            msg, fix = too_big("MER_MAX_MCAP_RECORDS", f"over {cap_n:,}")
+            raise ShardFormatError(msg, path=path, fix=fix)
+
+    with open(path, "rb") as fh:
+        reader = StreamReader(_BoundedFile(fh, st.st_size, path), emit_chunks=True, validate_crcs=True,
+                              record_size_limit=st.st_size)  # fmt: skip
+        for rec in reader.records:
+            count()
+            if not isinstance(rec, Chunk):
+                yield rec
+                continue
+            if not messages:
+                continue
+            total += rec.uncompressed_size
+            if total > cap_total:
+                msg, fix = too_big("MER_MAX_MCAP_BYTES", f"over {cap_total:,}")
+                raise ShardFormatError(msg, path=path, fix=fix)
+            data = _inflate(rec, path)
+            plain = Chunk(compression="", data=data, message_end_time=rec.message_end_time,
+                          message_start_time=rec.message_start_time, uncompressed_crc=0, uncompressed_size=len(data))  # fmt: skip
+            for inner in breakup_chunk(plain):
+                count()
+                yield inner
+
+
+_ERRORS = (McapError, OSError, ValueError, KeyError, IndexError, TypeError, EOFError, struct.error, RecursionError,
+           UnicodeDecodeError, binascii.Error)  # fmt: skip
+
+
 class McapShard:
-    """Read access to an MCAP shard; the windows are decoded into memory on first use."""
+    """Read access to an MCAP shard; the windows are decoded into memory on first use (bounded, checked)."""
 
     format = "mcap"
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
+        metas = []
         try:
-            with open(self.path, "rb") as f:
-                reader = make_reader(f)
-                metas = [m for m in reader.iter_metadata() if m.name == _META_NAME]
-        except (McapError, OSError, ValueError, EOFError) as exc:
-            raise ShardFormatError(f"cannot read the MCAP shard ({exc})", path=self.path, fix="rebuild it") from None
+            for rec in read_mcap(self.path, messages=False):
+                if isinstance(rec, Metadata) and rec.name == _META_NAME:
+                    metas.append(rec)
+        except _ERRORS as exc:
+            raise ShardFormatError(f"cannot read the MCAP shard ({type(exc).__name__}: {exc})", path=self.path,
+                                   fix="rebuild it") from None  # fmt: skip
         if not metas:
             raise ShardFormatError("not a mer shard (no 'mer.shard' metadata record)", path=self.path)
         self.meta = ShardMeta.from_attrs(dict(metas[0].metadata), self.path)
@@ -167,6 +283,29 @@ class McapShard:
     def num_rows(self) -> int:
         return self.meta.num_rows
 
+    def _decode(self, d: Any, shapes: dict[str, tuple[int, ...]]) -> tuple[int, dict[str, Any]]:
+        """(row, column values) of one ``/mer/windows`` message, every field checked against the schema."""
+        if not isinstance(d, dict) or not isinstance(d.get("row"), int) or not 0 <= d["row"] < self.meta.num_rows:
+            raise ShardFormatError(f"a window message has no valid row (0..{self.meta.num_rows - 1})", path=self.path,
+                                   element=WINDOW_TOPIC)  # fmt: skip
+        out: dict[str, Any] = {}
+        for c, dtype in COLUMNS.items():
+            v = d.get(c)
+            where = f"{WINDOW_TOPIC} row {d['row']}, column {c!r}"
+            if dtype == "str":
+                if not isinstance(v, str) or len(v) > 4096:
+                    raise ShardFormatError("is not a string (of at most 4096 characters)", path=self.path, element=where)
+                out[c] = v
+                continue
+            want = np.dtype(dtype)
+            nbytes = int(np.prod(shapes[c], dtype=np.int64)) * want.itemsize
+            if not (isinstance(v, dict) and v.get("dtype") == want.str and v.get("shape") == list(shapes[c])
+                    and isinstance(v.get("base64"), str) and len(v["base64"]) == 4 * ((nbytes + 2) // 3)):  # fmt: skip
+                raise ShardFormatError(f"is not an array of dtype {want.str} and shape {list(shapes[c])}", path=self.path,
+                                       element=where)  # fmt: skip
+            out[c] = np.frombuffer(base64.b64decode(v["base64"], validate=True), dtype=want).reshape(shapes[c])
+        return d["row"], out
+
     def _load(self) -> dict[str, np.ndarray]:
         if self._cols is not None:
             return self._cols
@@ -174,15 +313,19 @@ class McapShard:
         n = self.meta.num_rows
         cols = {c: (np.empty(n, object) if d == "str" else np.empty((n,) + shapes[c], d)) for c, d in COLUMNS.items()}
         seen = np.zeros(n, bool)
+        topics: dict[int, str] = {}
         try:
-            with open(self.path, "rb") as f:
-                for _, _, m in make_reader(f).iter_messages(topics=[WINDOW_TOPIC], log_time_order=False):
-                    d = json.loads(m.data)
-                    r = int(d["row"])
-                    for c, dtype in COLUMNS.items():
-                        cols[c][r] = d[c] if dtype == "str" else _dec(d[c])
+            for rec in read_mcap(self.path):
+                if isinstance(rec, Channel):
+                    topics[rec.id] = rec.topic
+                elif isinstance(rec, Message) and topics.get(rec.channel_id) == WINDOW_TOPIC:
+                    r, vals = self._decode(json.loads(rec.data), shapes)
+                    for c, v in vals.items():
+                        cols[c][r] = v
                     seen[r] = True
-        except (McapError, OSError, ValueError, KeyError, IndexError, EOFError) as exc:
+        except ShardFormatError:
+            raise
+        except _ERRORS as exc:
             raise ShardFormatError(f"damaged MCAP shard ({type(exc).__name__}: {exc})", path=self.path) from None
         if not seen.all():
             raise ShardFormatError(f"damaged MCAP shard: {int((~seen).sum())} of {n} windows missing", path=self.path)

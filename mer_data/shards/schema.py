@@ -179,9 +179,57 @@ class ShardMeta:
             meta.shard_index, meta.num_shards, meta.window = int(meta.shard_index), int(meta.num_shards), int(meta.window)
             meta.variants, meta.num_rows, meta.fps = int(meta.variants), int(meta.num_rows), float(meta.fps)
             meta.format_version = int(meta.format_version)
-        except (KeyError, ValueError, TypeError) as exc:
-            raise ShardFormatError(f"damaged shard metadata ({exc})", path=path) from None
+        except (KeyError, ValueError, TypeError, AttributeError, RecursionError, OverflowError) as exc:
+            raise ShardFormatError(f"damaged shard metadata ({type(exc).__name__}: {exc})", path=path) from None
+        meta.check(path)
         return meta
+
+    def check(self, path: str | Path | None = None) -> None:
+        """Refuse metadata of the wrong types or out of range (a file from a stranger), naming the field."""
+        from mer_data.base.limits import limit, too_big
+
+        def bad(field: str, why: str, fix: str | None = None) -> ShardFormatError:
+            return ShardFormatError(f"damaged shard metadata: {field} {why}", path=path, element=f"metadata {field!r}",
+                                    fix=fix or "rebuild the shard with `mer shards build`")  # fmt: skip
+
+        def is_int(v: Any) -> bool:
+            return isinstance(v, int) and not isinstance(v, bool)
+
+        for name in ("robot", "split", "build_id", "part_key", "mer_version"):
+            if not isinstance(getattr(self, name), str):
+                raise bad(name, f"is {type(getattr(self, name)).__name__}, expected a string")
+        if not (isinstance(self.targets, list) and self.targets and all(isinstance(t, str) for t in self.targets)):
+            raise bad("targets", "is not a non-empty list of names")
+        if not (isinstance(self.skeletons, dict) and all(isinstance(k, str) and isinstance(v, str) for k, v in self.skeletons.items())):
+            raise bad("skeletons", "are not strings")
+        for n in {self.robot, *self.targets}:
+            if n not in self.skeletons:
+                raise bad("skeletons", f"lack {n!r}")
+        for n, text in self.skeletons.items():
+            try:
+                obj = json.loads(text)
+                names = obj["node_names"]
+            except (ValueError, TypeError, KeyError, RecursionError) as exc:
+                raise bad(f"skeleton:{n}", f"is not a skeleton ({type(exc).__name__})") from None
+            if not (isinstance(names, list) and 0 < len(names) <= 10_000):
+                raise bad(f"skeleton:{n}", "has no valid node_names")
+        if not isinstance(self.config, dict):
+            raise bad("config", "is not an object")
+        if not (isinstance(self.sources, list) and all(isinstance(s, dict) for s in self.sources)):
+            raise bad("sources", "is not a list of objects")
+        if not (1 <= self.window <= 100_000):
+            raise bad("window", f"is {self.window}, expected 1..100000")
+        if not (1 <= self.variants <= 10_000) or len(self.targets) * self.variants > 100_000:
+            raise bad("variants", f"is {self.variants} (x {len(self.targets)} targets), expected 1..10000 and at most 100000 samples per row")
+        if not (np.isfinite(self.fps) and 0 < self.fps <= 10_000):
+            raise bad("fps", f"is {self.fps}, expected a positive rate")
+        if not (is_int(self.num_rows) and 0 <= self.num_rows):
+            raise bad("num_rows", f"is {self.num_rows}")
+        if self.num_rows > limit("MER_MAX_SHARD_ROWS"):
+            msg, fix = too_big("MER_MAX_SHARD_ROWS", self.num_rows)
+            raise bad("num_rows", msg, fix)
+        if not (0 <= self.shard_index < max(self.num_shards, 1)):
+            raise bad("shard_index", f"{self.shard_index} is not below num_shards {self.num_shards}")
 
 
 def detect_format(path: str | Path) -> str:

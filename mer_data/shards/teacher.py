@@ -32,15 +32,17 @@ import numpy as np
 import torch
 
 from mer_data.base.errors import ShardFormatError
+from mer_data.base.limits import MAX_LENGTH_M
 from mer_data.kinematics.fk import apply_mimic, fk_skeleton, skeleton_tensors
 from mer_data.kinematics.rotations import axis_angle_to_matrix
 from mer_data.motion.windows import window_features
 from mer_data.skeleton import Skeleton
 
+from .h5safe import attr, require_values
 from .hdf5_io import ProcessLocalH5
 from .schema import ShardMeta
 
-__all__ = ["TEACHER_FORMAT", "TEACHER_VERSION", "TEACHER_DIR", "teacher_path", "TeacherFile", "teacher_features"]
+__all__ = ["TEACHER_FORMAT", "TEACHER_VERSION", "TEACHER_DIR", "teacher_path", "teacher_schema", "TeacherFile", "teacher_features"]
 
 TEACHER_FORMAT = "mer-teacher"
 TEACHER_VERSION = 1
@@ -53,43 +55,67 @@ def teacher_path(shard: str | Path, folder: str | Path | None = None) -> Path:
     return Path(folder if folder is not None else shard.parent / TEACHER_DIR) / f"{shard.stem}.h5"
 
 
+def teacher_schema(meta: ShardMeta) -> dict[str, tuple[str, tuple[int, ...]]]:
+    """name -> (dtype, shape) of the datasets of the teacher file of a shard with metadata ``meta``."""
+    R, S, T, J = meta.num_rows, meta.samples_per_row, meta.window, meta.max_target_nodes
+    return {"q": ("<f4", (R, S, T, J)), "base_pos": ("<f4", (R, S, T, 3)), "base_rotvec": ("<f4", (R, S, T, 3)),
+            "energy": ("<f4", (R, S)), "solved": ("|b1", (R, S))}  # fmt: skip
+
+
 class TeacherFile(ProcessLocalH5):
-    """Read access to a complete teacher file, checked against its shard's metadata (one handle per process)."""
+    """Read access to a complete teacher file, checked against its shard's metadata (one handle per process).
+
+    Opened and read through :mod:`.h5safe`; every solution handed on is finite."""
+
+    what = "teacher file"
 
     def __init__(self, path: str | Path, meta: ShardMeta) -> None:
         self.path = Path(path)
+        fix = "solve again: mer shards solve SHARDS --force"
+        f = self._f()
         try:
-            f = self._f()
-        except OSError as exc:
-            raise ShardFormatError(f"cannot read the teacher file: {exc}", path=self.path,
-                                   fix="solve again: mer shards solve SHARDS --force") from None  # fmt: skip
-        a = f.attrs
-        if a.get("format") != TEACHER_FORMAT:
-            raise ShardFormatError("not a mer teacher file", path=self.path)
-        if int(a.get("format_version", -1)) != TEACHER_VERSION:
-            raise ShardFormatError(f"teacher format version {a.get('format_version')} is not {TEACHER_VERSION}",
-                                   path=self.path, fix="solve again with this version of mer")  # fmt: skip
-        if a.get("shard_build_id") != meta.build_id:
-            raise ShardFormatError(
-                "the teacher file was solved for another build of this shard "
-                f"(build {a.get('shard_build_id')}, the shard is {meta.build_id})",
-                path=self.path,
-                fix="solve again: mer shards solve SHARDS --force",
-            )
-        S = meta.samples_per_row
-        if tuple(f["q"].shape[:2]) != (meta.num_rows, S) or f["q"].shape[2] != meta.window:
-            raise ShardFormatError(f"teacher arrays {f['q'].shape} do not fit the shard "
-                                   f"({meta.num_rows} rows x {S} samples x {meta.window} frames)", path=self.path)  # fmt: skip
-        self.solved = f["solved"][()]
-        self.energy = f["energy"][()]
-        self.solver = json.loads(a["solver"])
+            if attr(f, "format", path=self.path, default=None) != TEACHER_FORMAT:
+                raise ShardFormatError("not a mer teacher file", path=self.path, fix=fix)
+            version = attr(f, "format_version", path=self.path, default=-1)
+            if version != TEACHER_VERSION:
+                raise ShardFormatError(f"teacher format version {version!r} is not {TEACHER_VERSION}",
+                                       path=self.path, fix="solve again with this version of mer")  # fmt: skip
+            build = attr(f, "shard_build_id", path=self.path, default=None)
+            if build != meta.build_id:
+                raise ShardFormatError(
+                    "the teacher file was solved for another build of this shard "
+                    f"(build {build}, the shard is {meta.build_id})",
+                    path=self.path,
+                    fix=fix,
+                )
+            self.schema = teacher_schema(meta)
+            try:
+                for name in self.schema:
+                    self._ds(name)
+            except ShardFormatError as exc:
+                S = meta.samples_per_row
+                raise ShardFormatError(f"{exc.message}: the teacher file does not fit the shard ({meta.num_rows} rows x "
+                                       f"{S} samples x {meta.window} frames)", path=self.path, element=exc.element,
+                                       fix=fix) from None  # fmt: skip
+            self.solved = self._read("solved")
+            self.energy = self._read("energy")
+            require_values(self.energy[self.solved], "energy", path=self.path)
+            try:
+                self.solver = json.loads(attr(f, "solver", path=self.path))
+            except (ValueError, TypeError, RecursionError) as exc:
+                raise ShardFormatError(f"attribute 'solver' is not JSON ({type(exc).__name__})", path=self.path, fix=fix) from None
+        except BaseException:
+            self.close()
+            raise
 
     def solution(self, row: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """(q (T, J), base_pos (T, 3), base_rotvec (T, 3)) of sample ``k`` of ``row``; None if unsolved."""
         if not self.solved[row, k]:
             return None
-        f = self._f()
-        return f["q"][row, k], f["base_pos"][row, k], f["base_rotvec"][row, k]
+        out = tuple(self._read(name, (row, k)) for name in ("q", "base_pos", "base_rotvec"))
+        for name, a in zip(("q", "base_pos", "base_rotvec"), out):
+            require_values(a, name, path=self.path, row=row, low=-MAX_LENGTH_M, high=MAX_LENGTH_M)
+        return out  # type: ignore[return-value]
 
 
 def teacher_features(skel: Skeleton, q: np.ndarray, base_pos: np.ndarray, base_rotvec: np.ndarray, fps: float) -> np.ndarray:

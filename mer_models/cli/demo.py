@@ -23,13 +23,6 @@ import tempfile
 from pathlib import Path
 
 from mer_data.base.errors import MerError
-from mer_data.kinematics.jointmap import keypoint_pairs
-from mer_data.kinematics.scaling import body_part_scales
-from mer_data.motion.lafan1 import write_lafan1_csv
-from mer_data.robots.registry import BUILTIN_ROBOTS, get_skeleton, list_robots
-from mer_data.shards import BuildConfig, ShardDataset, build_shards, format_inspection, inspect_shards
-from mer_data.shards.config import PAPER_TARGETS
-from mer_data.synthesis.walking import walking_motion
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -44,6 +37,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def show_registry(source_name: str) -> list:
+    from mer_data.kinematics.jointmap import keypoint_pairs
+    from mer_data.kinematics.scaling import body_part_scales
+    from mer_data.robots.registry import get_skeleton, list_robots
+
     robots = list_robots()
     source = get_skeleton(source_name)
     print(f"mer demo: {len(robots)} robots in the registry; reference robot {source.name!r}\n")
@@ -59,6 +56,9 @@ def show_registry(source_name: str) -> list:
 
 def write_synthetic_input(folder: Path, robots: list[str], *, seconds: float = 8.0) -> list[Path]:
     """Two synthetic walking clips per robot, as LAFAN1 CSVs under ``folder/<robot>/``."""
+    from mer_data.motion.lafan1 import write_lafan1_csv
+    from mer_data.synthesis.walking import walking_motion
+
     paths = []
     for robot in robots:
         for i, (turn, phase) in enumerate(((0.1, 0.0), (-0.2, 1.0)), start=1):
@@ -69,6 +69,9 @@ def write_synthetic_input(folder: Path, robots: list[str], *, seconds: float = 8
 
 def cmd_demo(args) -> int:
     from mer_data.robots.example import EXAMPLE_ROBOT
+    from mer_data.robots.registry import BUILTIN_ROBOTS
+    from mer_data.shards import BuildConfig, ShardDataset, build_shards, format_inspection, inspect_shards
+    from mer_data.shards.config import PAPER_TARGETS
 
     choices = [*BUILTIN_ROBOTS, EXAMPLE_ROBOT]
     if args.show not in choices:
@@ -131,7 +134,10 @@ def retarget_walk(args, out: Path, builtins: list[str]) -> None:
            "none": "local folder"}[res.verified]  # fmt: skip
     print(f"\nmodel {name!r}: {res.source} ({how}), {res.folder}")
     if res.card is not None:
-        print(f"  {res.card.summary}")
+        from mer_models.hub.brief import brief_lines
+
+        for line in brief_lines(res.card):
+            print(f"  {line}")
     print(f"  trained on targets: {', '.join(ckpt.targets)}; references: {', '.join(ckpt.references)}; step {ckpt.step}")
 
     src = out / "input" / args.source / "synthetic_walk1.csv"

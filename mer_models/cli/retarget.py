@@ -19,34 +19,46 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "retarget",
         help="retarget a LAFAN1-layout CSV to another robot",
         description="Retarget INPUT (CSV in the source robot's LAFAN1 layout) to the target robot. "
-        "Outputs: CSV in the target's layout (-o), BeyondMimic npz, Foxglove MCAP, PNG film strip, GIF/MP4 video. "
+        "Outputs: CSV in the target's layout (-o), a motion tracker's npz (mjlab or BeyondMimic), Foxglove MCAP, PNG film "
+        "strip, GIF/MP4 video. "
         "Or a whole dataset: --input DIR|hf://REPO --targets ROBOT... --out DIR retargets every clip to every "
         "target (batched, resumable, --shard-index/--num-shards for array jobs; docs/model.md).",
     )
-    p.add_argument("input", nargs="?", help="source motion, .csv or .csv.gz (root xyz, quat xyzw, joints)")
-    p.add_argument("--source", required=True, help="robot of the input motion (e.g. g1)")
+    p.add_argument("input", nargs="?", help="source motion: .csv or .csv.gz of a robot (root xyz, quat xyzw, joints), "
+                   "or .bvh human motion capture")
+    p.add_argument("--source", help="robot of the input motion (e.g. g1), or bvh for human motion capture "
+                   "(default for a .bvh input)")
+    b = p.add_argument_group("human motion capture (BVH)")
+    b.add_argument("--bvh-units", choices=["m", "cm", "mm", "in"], help="length unit of the BVH (default: from the figure's size)")
+    b.add_argument("--bvh-up", choices=["y", "z"], help="up axis of the BVH (default: detected from where the head is)")
+    b.add_argument("--bvh-keypoints", metavar="FILE", help="YAML or JSON mapping key point -> BVH joint name, for the key "
+                   "points the name patterns miss or get wrong (partial is fine; docs/motion.md)")
     p.add_argument("--target", help="robot to retarget to (e.g. h1)")
     d = p.add_argument_group("datasets")
     d.add_argument("--input", dest="input_dir", metavar="DIR|hf://REPO",
                    help="folder with SOURCE/*.csv[.gz] (LAFAN1 layout) or *.csv[.gz], or a Hub dataset hf://OWNER/NAME[@REV]")
     d.add_argument("--targets", nargs="+", help="robots to retarget every clip to")
     d.add_argument("--out", help="output folder: OUT/TARGET/CLIP.csv (+ .npz), CLIP.metrics.json, summary.json")
-    d.add_argument("--formats", nargs="+", default=["csv"], choices=["csv", "npz"], help="files per clip (default csv)")
+    d.add_argument("--formats", nargs="+", default=["csv"], choices=["csv", "npz"],
+                   help="files per clip (default csv; npz needs --npz-for)")
     d.add_argument("--shard-index", type=int, default=0, help="this job's share of the (target, clip) pairs (0-based)")
     d.add_argument("--num-shards", type=int, default=1, help="number of jobs sharing the dataset")
     d.add_argument("--json", action="store_true", help="print the summary as JSON instead of a table")
     d.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("-o", "--output", help="output CSV in the target's LAFAN1-style layout")
-    p.add_argument("--npz", help="also write an npz in the mjlab / BeyondMimic layout (docs/trackers.md)")
+    p.add_argument("--npz", help="also write the npz a motion tracker reads; needs --npz-for (docs/trackers.md)")
     p.add_argument("--npz-fps", type=float, default=50.0, help="frame rate of npz outputs [Hz] (default 50, the trackers' rate; "
                    "resampled like csv_to_npz: lerp + slerp)")
-    p.add_argument("--npz-order", choices=["mjlab", "isaaclab"], default="mjlab",
-                   help="joint/body order of the npz: mjlab (default; URDF order, as MuJoCo/mjlab) or isaaclab "
-                   "(breadth-first, as Isaac Lab/BeyondMimic; verified robots only: g1) (docs/trackers.md)")
+    p.add_argument("--npz-for", choices=["mjlab", "beyondmimic"],
+                   help="the tracker that reads the npz (required with --npz and --formats npz): mjlab (MuJoCo's "
+                   "depth-first joint/body order) or beyondmimic (Isaac Lab's breadth-first order); each reads its own "
+                   "order without checking names (docs/trackers.md)")
     p.add_argument("--mcap", help="also write a Foxglove MCAP")
     p.add_argument("--plot", help="also write a PNG of stick figures over time")
     p.add_argument("--video", metavar="OUT.gif|OUT.mp4", help="also write a video: the scaled reference and the retarget side by "
                    "side (GIF: base install; MP4: needs ffmpeg)")
+    p.add_argument("--video-range", metavar="START:END", help="the part of the motion the video shows [s] (default: the "
+                   "first 10 s; 30: = from 30 s to the end)")
     p.add_argument("--video-fps", type=float, help="frame rate of the video [Hz] (default: the motion's 30; lower renders faster)")
     p.add_argument("--model", help="checkpoint folder, zoo name or ORG/NAME for --method diffusion "
                    "(default: the bundled model mer-base, trained on synthetic motion only)")
@@ -77,17 +89,50 @@ def physics_option(args):
     return PhysicsConfig()
 
 
+def bvh_options(args):
+    """The BVH reading options of ``--bvh-units``, ``--bvh-up``, ``--bvh-keypoints``."""
+    from mer_data.motion.sources import BvhOptions, load_bvh_keypoints
+
+    keypoints = load_bvh_keypoints(args.bvh_keypoints) if args.bvh_keypoints else None
+    return BvhOptions(units=args.bvh_units, up=args.bvh_up, keypoints=keypoints)
+
+
+def resolve_source(args, path) -> None:
+    """``--source`` from a ``.bvh`` input when not given; refuse a missing one for a CSV."""
+    from mer_data.base.errors import MerError
+    from mer_data.motion.sources import BVH_SOURCE, is_bvh
+
+    if args.source is None:
+        if path is not None and is_bvh(path):
+            args.source = BVH_SOURCE
+        else:
+            raise MerError("--source is required for robot motion", fix="name the robot of the input, e.g. --source g1 "
+                           "(or --source bvh for a folder of BVH files)")  # fmt: skip
+
+
 def cmd_retarget(args) -> int:
     from mer_data.base.errors import MerError
-    from mer_models.retarget.clip import retarget_file
+    from mer_data.motion.sources import BVH_SOURCE
 
     if args.input_dir is not None or args.targets is not None:
+        resolve_source(args, None)
         return _dataset(args)
     if args.input is None or args.target is None:
         raise MerError("give an INPUT file and --target, or a dataset: --input DIR --targets ROBOT... --out DIR")
-    args.method = args.method or "diffusion"
+    resolve_source(args, args.input)
+    human = args.source.lower() == BVH_SOURCE
+    if args.method is None:  # the optimiser, unless a model option says the model (docs/model.md, The default path)
+        wants_model = not human and (args.refine or args.model is not None or args.bf16 or args.steps is not None
+                                     or args.guidance is not None)  # fmt: skip
+        args.method = "diffusion" if wants_model else "optimize"
+        args.method_why = ("the default: the most accurate path; --method diffusion --refine 5 for the model"
+                           if args.method == "optimize" else "a model option was given")  # fmt: skip
     if not any([args.output, args.npz, args.mcap, args.plot, args.video]):
         raise MerError("nothing to write", fix="give -o OUT.csv and/or --npz/--mcap/--plot/--video")
+    if args.npz is not None:
+        from mer_models.export.writers import require_tracker
+
+        require_tracker(args.npz_for)
     check_refine(args)
     kw = {"steps": args.steps, "guidance": args.guidance, "seed": args.seed, "allow_unseen": args.allow_unseen, "refine": args.refine,
           "bf16": args.bf16}  # fmt: skip
@@ -103,17 +148,93 @@ def cmd_retarget(args) -> int:
 
         model = DEFAULT_MODEL
         print(f"no --model: using the bundled model {model!r} (trained on synthetic motion only; `mer zoo info {model}`)", file=sys.stderr)
-    res = retarget_file(
-        args.input, args.source, args.target, out_csv=args.output, npz=args.npz, mcap=args.mcap, plot=args.plot,
-        video=args.video, video_fps=args.video_fps,
-        model=model, method=args.method, input_fps=args.fps, device=args.device, npz_fps=args.npz_fps, npz_order=args.npz_order,
-        physics=physics_option(args), **kw,
-    )  # fmt: skip
+    bar, cm = _solver_bar(args.quiet)
+    with cm:
+        res = _retarget_one(args, model, human, kw)
+    if bar is not None:
+        bar.close()
     m = res.motion
-    print(f"{args.source} -> {args.target} ({res.method}): {m.num_frames} frames at {m.fps:g} Hz", file=sys.stderr)
+    why = getattr(args, "method_why", None)
+    print(f"{args.source} -> {args.target} ({res.method}{': ' + why if why else ''}): {m.num_frames} frames at {m.fps:g} Hz",
+          file=sys.stderr)  # fmt: skip
     for kind, path in res.outputs.items():
-        print(f"wrote {kind}: {path}")
+        print(f"wrote {kind}: {path}", file=sys.stderr if args.json else sys.stdout)
+    if args.json:
+        import json
+
+        print(json.dumps({"method": res.method, "frames": m.num_frames, "outputs": {k: str(v) for k, v in res.outputs.items()},
+                          "metrics": _plain(res.metrics)}, indent=1))  # fmt: skip
+    else:
+        print(format_metrics(res.metrics, args.target))
     return 0
+
+
+def _plain(metrics: dict | None) -> dict:
+    """JSON-ready metrics: floats, None for NaN, the lists as they are."""
+    import math
+
+    out = {}
+    for k, v in (metrics or {}).items():
+        if isinstance(v, float) and not math.isfinite(v):
+            v = None
+        if isinstance(v, (int, float, str, list, type(None))):
+            out[k] = v
+    return out
+
+
+def format_metrics(metrics: dict | None, target: str) -> str:
+    """One table row of the paper's metrics and the artifact figures (docs/model.md)."""
+    if not metrics:
+        return ""
+    cols = (("g_mpbpe", "g-mpbpe[m]", ".4f"), ("mpboe", "mpboe[rad]", ".3f"), ("mpbve", "mpbve[m/s]", ".3f"),
+            ("jerk_frame", "jerk", ".4f"), ("limit_violation", "limits", ".3f"), ("floor_frames", "floor<-1cm", ".3f"),
+            ("skate_median", "skate[m/s]", ".3f"), ("selfpen_1cm_frames", "selfpen>1cm", ".3f"), ("speed_frames", ">vel.lim", ".3f"))  # fmt: skip
+    head = f"{'target':10s} " + " ".join(f"{h:>11s}" for _, h, _ in cols)
+    cells = []
+    for k, _, fmt in cols:
+        v = metrics.get(k)
+        cells.append(f"{v:>11{fmt}}" if isinstance(v, (int, float)) and v == v else f"{'-':>11s}")
+    return head + "\n" + f"{target:10s} " + " ".join(cells)
+
+
+def _solver_bar(quiet: bool):
+    """A progress bar of the solver's iterations on stderr (none when quiet or not a terminal)."""
+    import contextlib
+
+    if quiet or not sys.stderr.isatty():
+        return None, contextlib.nullcontext()
+    from tqdm import tqdm
+
+    from mer_models.solver.progress import solver_progress
+
+    bar = tqdm(unit="it", file=sys.stderr, desc="retarget", dynamic_ncols=True, leave=False)
+
+    def update(stage: str, done: int, total: int) -> None:
+        bar.total = total
+        bar.n = done
+        bar.set_description(stage, refresh=False)
+        bar.refresh()
+
+    return bar, solver_progress(update)
+
+
+def _video_range(args):
+    if getattr(args, "video_range", None) is None:
+        return None
+    from mer_models.export.video import parse_time_range
+
+    return parse_time_range(args.video_range)
+
+
+def _retarget_one(args, model, human: bool, kw: dict):
+    from mer_models.retarget.clip import retarget_file
+
+    return retarget_file(
+        args.input, args.source, args.target, out_csv=args.output, npz=args.npz, mcap=args.mcap, plot=args.plot,
+        video=args.video, video_fps=args.video_fps, video_range=_video_range(args),
+        model=model, method=args.method, input_fps=args.fps, device=args.device, npz_fps=args.npz_fps, npz_for=args.npz_for,
+        physics=physics_option(args), bvh=bvh_options(args) if human else None, metrics=True, **kw,
+    )  # fmt: skip
 
 
 def _dataset(args) -> int:
@@ -129,9 +250,10 @@ def _dataset(args) -> int:
             + (f"; missing: {', '.join(missing)}" if missing else ""),
             fix="e.g. mer retarget --input lafan1/ --source g1 --targets h1 atlas --out retargeted/",
         )
-    if args.npz_order != "mjlab":
-        raise MerError(f"--npz-order {args.npz_order} is for single-file runs; dataset runs write the mjlab order",
-                       fix="drop --npz-order, or retarget the clips one by one (mer retarget CLIP.csv --npz OUT.npz --npz-order isaaclab)")
+    if "npz" in args.formats:
+        from mer_models.export.writers import require_tracker
+
+        require_tracker(args.npz_for)
     if args.video is not None:
         raise MerError("--video writes one file's video; a dataset run does not make videos",
                        fix="retarget the clip you want to see on its own: mer retarget CLIP.csv --source ... --target ... --video OUT.gif")
@@ -165,7 +287,8 @@ def _dataset(args) -> int:
         summary = retarget_dataset(
             args.input_dir, args.source, args.targets, args.out, method=method, checkpoint=checkpoint,
             formats=args.formats, shard_index=args.shard_index, num_shards=args.num_shards, input_fps=args.fps, npz_fps=args.npz_fps,
-            device=args.device, progress=progress, physics=physics_option(args), **kw,
+            npz_for=args.npz_for, device=args.device, progress=progress, physics=physics_option(args),
+            bvh=bvh_options(args) if args.source.lower() == "bvh" else None, **kw,
         )  # fmt: skip
     finally:
         if bar is not None:

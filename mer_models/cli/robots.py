@@ -1,20 +1,25 @@
-"""``mer robots list|show|register|unregister``."""
+"""``mer robots list|show|register|keypoints|unregister|export``.
+
+Only :mod:`argparse` is imported at module level (``mer --help`` stays fast); each command imports
+what it uses.
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
 import sys
+from typing import TYPE_CHECKING, Any
 
-from mer_data.robots.register import parse_lock, register_robot
-from mer_data.robots.registry import list_robots, load_robot, unregister_robot
-from mer_data.robots.table import skeleton_table
-from mer_data.skeleton import KEYPOINTS, Skeleton
+if TYPE_CHECKING:
+    from mer_data.robots.registry import Robot
+    from mer_data.skeleton import Skeleton
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("robots", help="list, show, register and unregister robots")
-    rs = p.add_subparsers(dest="robots_cmd", required=True, metavar="{list,show,register,unregister}")
+    """Add ``mer robots`` and its sub-commands to ``sub``."""
+    p = sub.add_parser("robots", help="list, show, register, unregister and export robots")
+    rs = p.add_subparsers(dest="robots_cmd", required=True, metavar="{list,show,register,keypoints,unregister,export}")
 
     q = rs.add_parser("list", help="all known robots")
     q.add_argument("--json", action="store_true", help="machine-readable output")
@@ -30,19 +35,41 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     src = q.add_mutually_exclusive_group(required=True)
     src.add_argument("--urdf", help="the robot's URDF (plain XML, no xacro)")
     src.add_argument("--mjcf", help="the robot's MJCF (MuJoCo XML, <mujoco> root; read with MuJoCo's compiler)")
-    q.add_argument("--keypoints", help="YAML/JSON file of the 14 key points; proposed from the description if omitted")
+    q.add_argument("--keypoints", metavar="FILE",
+                   help="YAML/JSON file of key points that correct the proposal: only those that change, or all 14 "
+                   "(`mer robots keypoints NAME --write FILE` writes the current set)")
     q.add_argument("--lock", action="append", default=[], metavar="JOINT=VALUE", help="hold a joint at a value [rad]")
     q.add_argument("--force", action="store_true", help="replace a robot of the same name")
-    q.add_argument("--dry-run", action="store_true", help="print what would be registered (the `show` table) and write nothing")
+    q.add_argument("--dry-run", action="store_true", help="print what would be registered and write nothing")
+    q.add_argument("--verbose", action="store_true", dest="full",
+                   help="with --dry-run: also print the node table (what `mer robots show` prints once registered)")
     q.set_defaults(func=cmd_register)
+
+    q = rs.add_parser("keypoints", help="print or write a robot's 14 key points as an editable --keypoints file",
+                      description="Print a robot's key points as a YAML key-point file (with a comment header), or "
+                      "write it with --write. Edit it and pass it to `mer robots register NAME --urdf FILE --keypoints "
+                      "FILE --force`; a file of only the key points that change is merged over the proposal.")
+    q.add_argument("name")
+    q.add_argument("--write", metavar="FILE", help="write the file here instead of printing it")
+    q.set_defaults(func=cmd_keypoints)
 
     q = rs.add_parser("unregister", help="remove a registered robot")
     q.add_argument("name")
     q.set_defaults(func=cmd_unregister)
 
+    q = rs.add_parser("export", help="write a robot's MuJoCo model (the model a tracker loads with its npz)",
+                      description="Write the robot's MuJoCo model: free base, every joint of its description with its "
+                      "limits, inertia, collision geometry, meshes where their files are there; bodies and joints in "
+                      "the order of its npz for mjlab (docs/trackers.md).")
+    q.add_argument("name")
+    q.add_argument("--mjcf", required=True, metavar="OUT.xml", help="where to write the MJCF")
+    q.set_defaults(func=cmd_export)
 
-def robot_json(skel: Skeleton, *, source: str, urdf: str) -> dict:
+
+def robot_json(skel: Skeleton, *, source: str, urdf: str) -> dict[str, Any]:
     """What ``mer robots show --json`` prints."""
+    from mer_data.skeleton import KEYPOINTS
+
     return {
         "name": skel.name,
         "source": source,
@@ -65,7 +92,10 @@ def robot_json(skel: Skeleton, *, source: str, urdf: str) -> dict:
     }
 
 
-def cmd_list(args) -> int:
+def cmd_list(args: argparse.Namespace) -> int:
+    """``mer robots list``: every robot, built-ins first."""
+    from mer_data.robots.registry import list_robots
+
     robots = list_robots()
     if args.json:
         rows = [
@@ -94,7 +124,7 @@ def cmd_list(args) -> int:
     return 0
 
 
-def _geometry(r) -> dict:
+def _geometry(r: Robot) -> dict[str, Any]:
     """What the robot collides with: shapes by source, and the bodies that only have fitted capsules."""
     from mer_data.robots.collision import collision_model
 
@@ -104,7 +134,11 @@ def _geometry(r) -> dict:
             "checked_pairs": int(len(m.pairs))}  # fmt: skip
 
 
-def cmd_show(args) -> int:
+def cmd_show(args: argparse.Namespace) -> int:
+    """``mer robots show NAME``: the node table and what the robot collides with."""
+    from mer_data.robots.registry import load_robot
+    from mer_data.robots.table import skeleton_table
+
     r = load_robot(args.name)
     s = r.skeleton
     geo = _geometry(r)
@@ -123,19 +157,64 @@ def cmd_show(args) -> int:
     return 0
 
 
-def cmd_register(args) -> int:
+def cmd_register(args: argparse.Namespace) -> int:
+    """``mer robots register``: the summary (key points, what to check, where the card went); the node table with --verbose."""
+    from mer_data.robots.register import parse_lock, register_robot
+    from mer_data.robots.table import skeleton_table
+
     locks = dict(parse_lock(t) for t in args.lock)
     path, expect = (args.mjcf, "mjcf") if args.mjcf is not None else (args.urdf, "urdf")
     report = register_robot(
         args.name, path, keypoints_file=args.keypoints, locks=locks, force=args.force, dry_run=args.dry_run, expect=expect
     )
-    if args.dry_run:
-        print(skeleton_table(report.skeleton, description=report.card.description, urdf=str(report.urdf_path), source="dry run"))
     print(report.summary())
+    if args.full:
+        print()
+        print(skeleton_table(report.skeleton, description=report.card.description, urdf=str(report.urdf_path),
+                             source="dry run" if args.dry_run else "user"))  # fmt: skip
+    elif args.dry_run:
+        print("  (--verbose adds the node table)")
     return 0
 
 
-def cmd_unregister(args) -> int:
+def cmd_keypoints(args: argparse.Namespace) -> int:
+    """``mer robots keypoints NAME [--write FILE]``: the current key points as an editable key-point file."""
+    from mer_data.base.atomic import atomic_write
+    from mer_data.base.errors import OutputError
+    from mer_data.robots.register import keypoints_yaml
+    from mer_data.robots.registry import load_robot
+
+    robot = load_robot(args.name)
+    text = keypoints_yaml(robot)
+    if args.write is None:
+        sys.stdout.write(text)
+        return 0
+    try:
+        atomic_write(args.write, text)
+    except OSError as exc:
+        raise OutputError(f"cannot write the key-point file: {exc.strerror or exc}", path=args.write,
+                          fix="give a file path in a folder you can write to") from None  # fmt: skip
+    print(f"wrote the 14 key points of {robot.name!r} to {args.write}: edit it, then "
+          f"`mer robots register {robot.name} --urdf FILE --keypoints {args.write} --force`")  # fmt: skip
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    """``mer robots export NAME --mjcf OUT.xml``: the robot's MuJoCo model."""
+    from mer_data.robots.registry import load_robot
+    from mer_models.export.mjcf import write_mjcf
+
+    r = load_robot(args.name)
+    path = write_mjcf(args.mjcf, r)
+    print(f"wrote {path}: the MuJoCo model of {args.name!r} (bodies and joints in the order of `mer retarget "
+          "--npz OUT.npz --npz-for mjlab`)")
+    return 0
+
+
+def cmd_unregister(args: argparse.Namespace) -> int:
+    """``mer robots unregister NAME``: remove a user robot."""
+    from mer_data.robots.registry import unregister_robot
+
     folder = unregister_robot(args.name)
-    print(f"unregistered {args.name!r} (removed {folder})", file=sys.stdout)
+    print(f"unregistered {folder.name!r} (removed {folder})", file=sys.stdout)
     return 0

@@ -7,7 +7,6 @@ import json
 import os
 import sys
 
-from mer_data.shards import BuildConfig, build_shards, format_inspection, inspect_shards, push_shards, write_card, write_sidecar
 from mer_data.shards.config import FORMATS, PAPER_TARGETS
 
 
@@ -62,6 +61,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse._SubParsersAction:
 
 
 def cmd_build(args) -> int:
+    from mer_data.shards import BuildConfig, build_shards
+
     try:
         synthetic = args.synthetic is not None
         if synthetic and args.synthetic < 1:
@@ -106,12 +107,16 @@ def cmd_build(args) -> int:
 
 
 def cmd_inspect(args) -> int:
+    from mer_data.shards import format_inspection, inspect_shards
+
     info = inspect_shards(args.path)
     print(json.dumps(info, indent=1) if args.json else format_inspection(info))
     return 0
 
 
 def cmd_card(args) -> int:
+    from mer_data.shards import write_card, write_sidecar
+
     print(write_card(args.path, input_label=args.input_label, dest=args.out))
     if args.out is None:
         print(write_sidecar(args.path))
@@ -119,6 +124,8 @@ def cmd_card(args) -> int:
 
 
 def cmd_push(args) -> int:
+    from mer_data.shards import push_shards
+
     res = push_shards(args.path, args.repo_id, private=args.private, ignore_license=args.ignore_license, message=args.message)
     print(f"pushed {len(res.files)} file(s) to {res.repo_id} at {res.commit}")
     print(f"read it with ShardDataset(\"hf://datasets/{res.repo_id}@{res.commit}\")")

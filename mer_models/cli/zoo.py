@@ -1,16 +1,17 @@
-"""``mer zoo list|info|download|publish``: thin wrappers over :mod:`mer_models.zoo`."""
+"""``mer zoo list|info|download|publish``: thin wrappers over :mod:`mer_models.zoo`.
+
+Only :mod:`argparse` is imported at module level (``mer --help`` stays fast); each command imports
+what it uses.
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
 
-from mer_models.hub import resolve as api
-from mer_models.hub.publish import publish
-from mer_models.hub.registry import Registry
-
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Add ``mer zoo`` and its sub-commands to ``sub``."""
     p = sub.add_parser("zoo", help="pretrained models: list, inspect, download, publish")
     zs = p.add_subparsers(dest="zoo_cmd", required=True, metavar="{list,info,download,publish}")
 
@@ -18,9 +19,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--json", action="store_true", help="machine-readable output")
     q.set_defaults(func=cmd_list)
 
-    q = zs.add_parser("info", help="one model's card: repo, pinned revision, files, robots, data, metrics, licence")
+    q = zs.add_parser("info", help="one model in a few lines: what it is, its robots, its accuracy (--verbose: the whole card)",
+                      description="What the model is, the robots it retargets from and to, and its headline accuracy "
+                      "(E_g-mpbpe per method). --verbose adds the training record, files and checksums, history, the "
+                      "licence note and how to reproduce it; the card file has everything.")
     q.add_argument("name")
     q.add_argument("--json", action="store_true", help="print the card's metadata as JSON")
+    q.add_argument("--verbose", action="store_true", dest="full",
+                   help="the whole card: training record, files, earlier revisions, licence note, how to train it")
     q.set_defaults(func=cmd_info)
 
     q = zs.add_parser("download", help="fetch a model into the Hub cache and verify every file's sha256")
@@ -45,7 +51,11 @@ def _mb(n: int) -> str:
     return f"{n / 1e6:.1f} MB" if n else "-"
 
 
-def cmd_list(args) -> int:
+def cmd_list(args: argparse.Namespace) -> int:
+    """``mer zoo list``: every model mer knows and where it is."""
+    from mer_models.hub import resolve as api
+    from mer_models.hub.registry import Registry
+
     reg = Registry()
     rows = []
     for e in api.list_models(reg):
@@ -62,7 +72,12 @@ def cmd_list(args) -> int:
     return 0
 
 
-def cmd_info(args) -> int:
+def cmd_info(args: argparse.Namespace) -> int:
+    """``mer zoo info NAME``: a few lines by default (:func:`~mer_models.hub.brief.brief_lines`); the whole card with --verbose."""
+    from mer_models.hub import resolve as api
+    from mer_models.hub.brief import accuracy_lines, brief_lines
+    from mer_models.hub.registry import Registry
+
     reg = Registry()
     e = api.model_info(args.name, reg)
     c = e.card
@@ -70,9 +85,18 @@ def cmd_info(args) -> int:
         print(json.dumps({"where": api.where(e, reg), "source": e.source, "card": str(c.path), **c.to_meta(),
                           "license": c.license}, indent=2))
         return 0
-    print(f"{c.name}  ({api.where(e, reg)}; {e.source} card {c.path})")
+    print(f"{c.name}  ({api.where(e, reg)}, {c.license})")
+    if not args.full:
+        for line in brief_lines(c):
+            print(f"  {line}")
+        print(f"  card:     {c.path} (all of it: `mer zoo info {c.name} --verbose`)")
+        return 0
+    print(f"  {e.source} card {c.path}")
     print(f"  {c.summary}")
-    print(f"  repo:      {c.repo_id or '-'} @ {c.revision or 'not published'}")
+    for line in accuracy_lines(c):
+        print(f"  {line}")
+    if c.repo_id:
+        print(f"  repo:      {c.repo_id} @ {c.revision or 'not published yet'}")
     if c.base_model:
         print(f"  base:      {c.base_model} @ {c.base_revision or '-'}")
     print(f"  targets:   {', '.join(c.robots.get('targets', [])) or '-'}")
@@ -91,7 +115,10 @@ def cmd_info(args) -> int:
     return 0
 
 
-def cmd_download(args) -> int:
+def cmd_download(args: argparse.Namespace) -> int:
+    """``mer zoo download NAME``: fetch into the Hub cache and verify."""
+    from mer_models.hub import resolve as api
+
     res = api.resolve(args.name, args.revision)
     how = {"card": "size and sha256 checked against the card", "hub": "checked against the Hub's content ids (no card)",
            "none": "local folder, not checked"}[res.verified]
@@ -100,7 +127,10 @@ def cmd_download(args) -> int:
     return 0
 
 
-def cmd_publish(args) -> int:
+def cmd_publish(args: argparse.Namespace) -> int:
+    """``mer zoo publish``: upload a checkpoint and record it in its card."""
+    from mer_models.hub.publish import publish
+
     r = publish(args.checkpoint, name=args.name, repo_id=args.repo_id, base=args.base, cards_dir=args.cards_dir,
                 license=args.license, summary=args.summary, private=args.private)
     print(f"published {r.card.name} as {r.card.repo_id}@{r.commit}")

@@ -45,7 +45,7 @@ from .writers import TargetMotion, check_motion_finite
 
 log = logging.getLogger(__name__)
 
-__all__ = ["VIDEO_FORMATS", "GIF_MAX_FPS", "check_video_path", "find_ffmpeg", "video_frame_indices", "write_video"]
+__all__ = ["parse_time_range", "DEFAULT_VIDEO_SECONDS", "VIDEO_FORMATS", "GIF_MAX_FPS", "check_video_path", "find_ffmpeg", "video_frame_indices", "write_video"]
 
 #: File endings and what writes them.
 VIDEO_FORMATS = {".gif": "Pillow", ".mp4": "ffmpeg"}
@@ -117,23 +117,57 @@ def _bounds(*clouds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return lo - pad, hi + pad
 
 
+#: Without a time range, a video shows at most this many seconds from the start (a message says so).
+DEFAULT_VIDEO_SECONDS = 10.0
+#: A GIF's frame rate without ``fps`` [Hz]: 10 s at 800x400 stay under ~5 MB.
+DEFAULT_GIF_FPS = 15.0
+
+
+def parse_time_range(text: str) -> tuple[float, float | None]:
+    """``START:END`` seconds (either may be empty: ``:5``, ``12:``) → (start, end or None)."""
+    a, sep, b = str(text).partition(":")
+    try:
+        start = float(a) if a.strip() else 0.0
+        end = float(b) if b.strip() else None
+    except ValueError:
+        start, end = -1.0, None
+    if not sep or start < 0 or not np.isfinite(start) or (end is not None and (not np.isfinite(end) or end <= start)):
+        raise MerError(f"video range {text!r} is not START:END in seconds with 0 <= START < END",
+                       fix="e.g. --video-range 0:10, --video-range 30: (to the end)")  # fmt: skip
+    return start, end
+
+
+def _centred(x: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """(F, N, 3) positions moved so that each frame's ``centre`` (F, 2) is at x = y = 0."""
+    out = np.array(x, np.float64, copy=True)
+    out[..., :2] -= centre[:, None, :]
+    return out
+
+
 class _Renderer:
-    """One reused figure: two 3D panels whose artists are moved to each frame."""
+    """One reused figure: two 3D panels whose artists are moved to each frame. The camera follows
+    the robot: every frame is drawn about its base's x, y (the floor path scrolls under it)."""
 
     def __init__(self, motion: TargetMotion, robot_pos: np.ndarray, goals: np.ndarray, ref_nodes: np.ndarray | None,
-                 ref_skel: Skeleton | None, size: tuple[int, int], title: str | None) -> None:  # fmt: skip
+                 ref_skel: Skeleton | None, size: tuple[int, int], title: str | None, shown: np.ndarray | None = None) -> None:  # fmt: skip
         from matplotlib.backends.backend_agg import FigureCanvasAgg
         from matplotlib.figure import Figure
         from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
+        self.centre = np.asarray(robot_pos[:, 0, :2], np.float64)
+        self.path = np.asarray(robot_pos[:, 0], np.float64)
+        robot_pos, goals = _centred(robot_pos, self.centre), _centred(goals, self.centre)
+        ref_nodes = None if ref_nodes is None else _centred(ref_nodes, self.centre)
         self.motion, self.robot_pos, self.goals, self.ref_nodes, self.ref_skel = motion, robot_pos, goals, ref_nodes, ref_skel
         skel = motion.skeleton
         self.key = np.array([j for j in skel.keypoints.values() if j >= 0], dtype=int)
         dpi = 100
         self.fig = Figure(figsize=(size[0] / dpi, size[1] / dpi), dpi=dpi)
         self.canvas = FigureCanvasAgg(self.fig)
-        clouds = [robot_pos, goals] + ([ref_nodes] if ref_nodes is not None else [])
+        sel = slice(None) if shown is None else shown
+        clouds = [robot_pos[sel], goals[sel]] + ([ref_nodes[sel]] if ref_nodes is not None else [])
         lo, hi = _bounds(*clouds)
+        self.floor, self.lo, self.hi = lo[2], lo, hi
         r0 = np.asarray(motion.base_rot[0])
         azim = float(np.degrees(np.arctan2(r0[1, 0], r0[0, 0]))) - 60.0  # three-quarter view of the initial heading
         self.axes = []
@@ -156,13 +190,12 @@ class _Renderer:
         self.rob_bones = Line3DCollection(_bones(robot_pos[0], skel.parents), colors="tab:blue", linewidths=1.5)
         rob_ax.add_collection3d(self.rob_bones, autolim=False)
         (self.rob_dots,) = rob_ax.plot([], [], [], "o", color="tab:orange", ms=3)
-        for ax in self.axes:  # the base's path on the floor, for orientation
-            ax.plot(robot_pos[:, 0, 0], robot_pos[:, 0, 1], np.full(len(robot_pos), lo[2]), color="0.45", lw=1.0)
+        self.paths = [ax.plot([], [], [], color="0.45", lw=1.0)[0] for ax in self.axes]  # the base's path on the floor
         self.label = self.fig.text(0.5, 0.02, "", ha="center", fontsize=9, family="monospace")
         self.fig.suptitle(title or "", fontsize=9, y=0.995)
         self.width, self.height = self.canvas.get_width_height()
         # blitting: the panes, grids, ticks and titles never move; draw them once, keep the pixels
-        self.moving = [a for a in (self.ref_bones, self.ref_dots, self.rob_bones, self.rob_dots, self.label) if a is not None]
+        self.moving = [a for a in (*self.paths, self.ref_bones, self.ref_dots, self.rob_bones, self.rob_dots, self.label) if a is not None]
         for a in self.moving:
             a.set_animated(True)
         self.canvas.draw()  # also fixes each panel's projection (ax.M), which the moving artists use
@@ -171,6 +204,10 @@ class _Renderer:
     def frame(self, f: int) -> np.ndarray:
         """(H, W, 3) uint8 picture of frame ``f``."""
         m = self.motion
+        rel = self.path - np.append(self.centre[f], 0.0)
+        rel[((rel[:, :2] < self.lo[:2]) | (rel[:, :2] > self.hi[:2])).any(1)] = np.nan  # inside the panel only
+        for line in self.paths:
+            line.set_data_3d(rel[:, 0], rel[:, 1], np.full(len(rel), self.floor))
         if self.ref_bones is not None:
             self.ref_bones.set_segments(_bones(self.ref_nodes[f], self.ref_skel.parents))
         g = self.goals[f]
@@ -271,6 +308,7 @@ def write_video(
     fps: float | None = None,
     size: tuple[int, int] = (800, 400),
     title: str | None = None,
+    time_range: tuple[float, float | None] | None = None,
 ) -> Path:
     """Write the side-by-side video (GIF or MP4, by the ending of ``path``; module docstring).
 
@@ -280,9 +318,12 @@ def write_video(
         reference_nodes: (F, Jr, 3) every node of the scaled reference [m] (its bones are drawn when
             ``reference_skeleton`` is given too; without them the left panel shows the goals only).
         reference_skeleton: the reference (source) skeleton, for the parent links of ``reference_nodes``.
-        fps: frame rate of the video [Hz]; default the motion's. Lower keeps every k-th frame.
+        fps: frame rate of the video [Hz]; default the motion's (MP4) or :data:`DEFAULT_GIF_FPS`
+            (GIF). Lower keeps every k-th frame.
         size: (width, height) [px], both even (MP4's colour format needs it).
         title: a line above the panels.
+        time_range: (start, end) [s] of the motion to show (end None: to the end); None: the first
+            :data:`DEFAULT_VIDEO_SECONDS` (a message says when that cuts the clip).
 
     Returns:
         ``path``. Raises MerError for an unknown ending, a missing ffmpeg (MP4), mismatched shapes
@@ -290,6 +331,8 @@ def write_video(
     """
     path = Path(path)
     kind = check_video_path(path, fps)
+    if fps is None and kind == "gif":
+        fps = DEFAULT_GIF_FPS
     check_motion_finite(motion, path)
     F = motion.num_frames
     goals = np.asarray(reference_points, np.float64)
@@ -307,9 +350,20 @@ def write_video(
         raise MerError(f"video size {w}x{h}: width and height must be even and at least 64 px", path=path)
     out_fps = float(fps) if fps is not None and fps < motion.fps else float(motion.fps)
     idx = video_frame_indices(F, motion.fps, fps)
+    t = idx / motion.fps
+    if time_range is None:
+        start, end = 0.0, DEFAULT_VIDEO_SECONDS
+        if t[-1] > end + 1e-9:
+            log.warning("%s: showing the first %g s of %.1f s (--video-range START:END for another part)", path, end, t[-1])
+    else:
+        start, end = time_range
+    idx = idx[(t >= start - 1e-9) & (t <= (np.inf if end is None else end) + 1e-9)]
+    if not len(idx):
+        raise MerError(f"the video range {start:g}:{'' if end is None else f'{end:g}'} s holds no frame of the "
+                       f"{(F - 1) / motion.fps:.1f} s motion", path=path, fix="pass a range inside the motion")  # fmt: skip
     robot_pos, _ = motion.forward_kinematics()
     t0 = time.perf_counter()
-    r = _Renderer(motion, robot_pos, goals, nodes, reference_skeleton if nodes is not None else None, (w, h), title)
+    r = _Renderer(motion, robot_pos, goals, nodes, reference_skeleton if nodes is not None else None, (w, h), title, shown=idx)
     try:
         frames = (r.frame(int(f)) for f in idx)
         if kind == "gif":

@@ -1,4 +1,4 @@
-"""Writers of a retargeted motion: LAFAN1-style CSV, BeyondMimic npz, Foxglove MCAP.
+"""Writers of a retargeted motion: LAFAN1-style CSV, a motion tracker's npz (mjlab or BeyondMimic), Foxglove MCAP.
 
 All take a :class:`TargetMotion` and write atomically (temporary file, then rename).
 
@@ -11,26 +11,33 @@ h1_2: the LAFAN1 robot layout), else in the skeleton's node order (``Skeleton.jo
 actuated URDF joints, depth-first; ``mer robots show NAME`` lists them). :func:`csv_columns` gives
 the order.
 
-**npz** (the mjlab / BeyondMimic ``csv_to_npz`` layout, resampled like ``csv_to_npz`` to
-``fps`` = 50 Hz by default, the trackers' control rate: angles and positions linearly, the base
-orientation by slerp; ``fps=None`` keeps the motion's rate): ``fps``, ``joint_pos``
-(F, D), ``joint_vel`` (F, D), ``body_pos_w`` (F, L, 3), ``body_quat_w`` (F, L, 4, **wxyz**),
-``body_lin_vel_w``, ``body_ang_vel_w`` (F, L, 3, world frame), plus ``joint_names`` (D,) (the CSV's
-joint order) and ``body_names`` (L,): the URDF links of the base and of every joint node.
-``order="mjlab"`` (default) keeps the CSV's joint order and mer's skeleton (URDF, depth-first) body
-order, which for G1 is MuJoCo's / mjlab's; ``order="isaaclab"`` writes joints and bodies in Isaac
-Lab's articulation order (breadth-first), as BeyondMimic's npz has them, for the robots in
-:data:`ISAACLAB_VERIFIED` (:func:`isaaclab_order`).
+**npz** (the keys of mjlab's / BeyondMimic's ``csv_to_npz`` output, for one tracker: ``tracker`` is
+required, ``"mjlab"`` or ``"beyondmimic"``; docs/trackers.md), resampled like ``csv_to_npz`` to
+``fps`` = 50 Hz by default, the trackers' control rate (angles and positions linearly, the base
+orientation by slerp; ``fps=None`` keeps the motion's rate): ``fps`` (1,) int64, ``joint_pos``,
+``joint_vel`` (F, D) float32, ``body_pos_w`` (F, B, 3), ``body_quat_w`` (F, B, 4, **wxyz**),
+``body_lin_vel_w``, ``body_ang_vel_w`` (F, B, 3, world frame) float32, plus ``joint_names`` (D,)
+and ``body_names`` (B,). The joints and bodies are the robot's **own articulation**
+(:mod:`mer_data.robots.articulation`): every joint of its description (locked joints at their
+locked value, mimic joints from their master) and every body a simulator makes of it, so the
+arrays line up with the robot's model as the tracker loads it; they are in the tracker's order
+(mjlab: MuJoCo's depth-first order; beyondmimic: Isaac Lab's breadth-first order), because
+neither tracker's ``MotionLoader`` reads the names. ``body_lin_vel_w`` is what each tracker logs:
+the link origin's velocity for mjlab (``body_link_lin_vel_w``), the centre of mass's for
+BeyondMimic (Isaac Lab's ``body_lin_vel_w``).
 
-**MCAP**: JSON channels ``/tf`` (``foxglove.FrameTransforms``, one message per frame) and
-``/skeleton`` (``foxglove.SceneUpdate``), plus ``/reference`` (``foxglove.SceneUpdate`` spheres at
-the scaled reference key points) when given. The schemas embedded are Foxglove's official JSON
-schemas (:mod:`mer_data.shards.foxglove`), so Foxglove's and Lichtblick's 3D panels draw them.
+**MCAP** (:mod:`.foxglove_robot`): JSON channels ``/tf`` (``foxglove.FrameTransforms``, one message per
+frame; frames named after the robot's URDF / MJCF links, ``world`` the fixed frame), ``/robot``
+(``foxglove.SceneUpdate``: the robot's collision shapes on its link frames), ``/robot_description``
+(the URDF as ``std_msgs/String``, which Foxglove's URDF layer reads), ``/skeleton`` (mer's stick
+figure), plus ``/reference`` (spheres at the scaled reference key points) when given. The
+foxglove.* schemas embedded are Foxglove's official JSON schemas (:mod:`mer_data.shards.foxglove`).
 """
 
 from __future__ import annotations
 
 import io
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -38,10 +45,12 @@ import numpy as np
 import torch
 
 from mer_data.base.atomic import atomic_write
+from mer_data.base.errors import MerError, OutputError, UnknownRobotError
 from mer_data.base.finite import require_finite
-from mer_data.kinematics.fk import fk_skeleton, link_rotations, skeleton_tensors
+from mer_data.kinematics.fk import fk_skeleton, skeleton_tensors
 from mer_data.kinematics.rotations import matrix_to_axis_angle, matrix_to_quat, quat_slerp, quat_to_matrix
 from mer_data.motion.features import finite_difference
+from mer_data.robots.articulation import TRACKERS, articulation
 from mer_data.robots.registry import Robot, load_robot
 from mer_data.skeleton import Skeleton
 
@@ -53,19 +62,18 @@ __all__ = [
     "write_csv",
     "write_npz",
     "write_mcap",
-    "isaaclab_order",
+    "require_tracker",
+    "npz_robot",
     "NPZ_FPS",
-    "NPZ_ORDERS",
-    "ISAACLAB_VERIFIED",
+    "NPZ_TRACKERS",
 ]
+
+log = logging.getLogger(__name__)
 
 #: Frame rate of npz outputs: the control rate of the mjlab / BeyondMimic trackers [Hz].
 NPZ_FPS = 50.0
-#: Joint/body layouts of npz outputs: mjlab (URDF order, MuJoCo's) or isaaclab (breadth-first, BeyondMimic's).
-NPZ_ORDERS = ("mjlab", "isaaclab")
-#: Robots whose breadth-first order :func:`isaaclab_order` has been checked against Isaac Lab's
-#: published articulation order (tests/models/export/test_npz_order.py); others are refused for ``isaaclab``.
-ISAACLAB_VERIFIED = frozenset({"g1"})
+#: The trackers an npz is written for: each reads joints and bodies in its own order (docs/trackers.md).
+NPZ_TRACKERS = TRACKERS
 
 
 @dataclass(frozen=True)
@@ -156,52 +164,6 @@ def _angular_velocity(rot: np.ndarray, fps: float) -> np.ndarray:
     return (w / dt[:, None, None]).numpy()
 
 
-def isaaclab_order(skel: Skeleton) -> tuple[tuple[str, ...], list[int]]:
-    """Isaac Lab's articulation order of ``skel``: (joint names, body node indices).
-
-    PhysX parses an articulation breadth-first: the root link, then its children, then theirs, each
-    link's children in the order the URDF declares them (the USD prim order); fixed-joint links are
-    merged into their parents (Isaac Lab's URDF importer default), as they are in mer's skeleton.
-    Joints follow their child links. Verified for the robots in :data:`ISAACLAB_VERIFIED`; raises
-    :class:`~mer_data.base.errors.OutputError` for any other robot (importer settings, locked joints and
-    prim order can differ, so the order is not guaranteed there).
-    """
-    from mer_data.base.errors import OutputError
-
-    if skel.name not in ISAACLAB_VERIFIED:
-        raise OutputError(
-            f"the Isaac Lab joint/body order is verified only for {', '.join(sorted(ISAACLAB_VERIFIED))}, not for {skel.name!r}",
-            element="npz order 'isaaclab'",
-            fix="write the default mjlab order (--npz-order mjlab) and reorder by the npz's joint_names/body_names "
-            "to your articulation's robot.joint_names/body_names, or convert mer's CSV with the tracker's csv_to_npz (docs/trackers.md)",
-        )
-    order, queue = [], [0]
-    while queue:
-        j = queue.pop(0)
-        order.append(j)
-        queue += [c for c in skel.children(j) if skel.node_kinds[c] != "site"]
-    return tuple(skel.node_names[j] for j in order[1:]), order
-
-
-def body_arrays(motion: TargetMotion, links: list[int] | None = None) -> dict[str, np.ndarray]:
-    """Body (URDF link) poses and velocities of the nodes ``links`` (default: the base and every
-    joint node, in node order): names (L,), positions (F, L, 3) [m], quaternions (F, L, 4) wxyz,
-    linear (F, L, 3) [m/s] and angular (F, L, 3) [rad/s] velocities, world frame."""
-    skel = motion.skeleton
-    pos, rot = motion.forward_kinematics()
-    if links is None:
-        links = [j for j in range(skel.num_nodes) if skel.node_kinds[j] != "site"]
-    lrot = link_rotations(torch.from_numpy(rot), torch.from_numpy(np.array(skel.rest_rotations))).numpy()[:, links]
-    bpos = pos[:, links]
-    return {
-        "body_names": np.array([skel.link_names[j] for j in links]),
-        "body_pos_w": bpos,
-        "body_quat_w": matrix_to_quat(torch.from_numpy(lrot)).numpy(),
-        "body_lin_vel_w": finite_difference(torch.from_numpy(bpos), motion.fps, dim=0).numpy(),
-        "body_ang_vel_w": _angular_velocity(lrot, motion.fps),
-    }
-
-
 def resample_motion(motion: TargetMotion, fps: float) -> TargetMotion:
     """``motion`` at ``fps`` [Hz] on :func:`mer_data.motion.resample.output_times`' grid: angles and base
     position linearly, base orientation by slerp (as ``csv_to_npz`` and :func:`mer_data.motion.resample.resample`)."""
@@ -221,57 +183,112 @@ def resample_motion(motion: TargetMotion, fps: float) -> TargetMotion:
     return TargetMotion(motion.skeleton, float(fps), q, base_pos, rot)
 
 
-def write_npz(path: str | Path, motion: TargetMotion, *, fps: float | None = NPZ_FPS, order: str = "mjlab", robot: Robot | None = None) -> Path:
-    """The mjlab / BeyondMimic npz at ``fps`` [Hz], joints and bodies in ``order`` (one of
-    :data:`NPZ_ORDERS`; see module docstring)."""
-    from mer_data.base.errors import OutputError
+def require_tracker(tracker: str | None, flag: str = "--npz-for") -> str:
+    """``tracker`` if it is one of :data:`NPZ_TRACKERS`; else a :class:`MerError` that names both."""
+    if tracker in NPZ_TRACKERS:
+        return tracker
+    said = "no tracker was named" if tracker is None else f"unknown tracker {tracker!r}"
+    mj, bm = (f'{flag}"mjlab"', f'{flag}"beyondmimic"') if flag.endswith("=") else (f"{flag} mjlab", f"{flag} beyondmimic")
+    raise MerError(
+        f"an npz is read by one tracker, in its own joint and body order, and {said}: {mj} (MuJoCo's depth-first "
+        f"order, mjlab's MotionLoader) or {bm} (Isaac Lab's breadth-first order, BeyondMimic's MotionLoader); neither "
+        "loader reads the names, so the other order loads the wrong joints without an error",
+        fix=f"add {mj} or {bm} (docs/trackers.md)",
+    )
 
-    if order not in NPZ_ORDERS:
-        raise OutputError(f"unknown npz order {order!r}", path=path, fix=f"use one of {', '.join(NPZ_ORDERS)}")
+
+def npz_robot(skel: Skeleton, robot: Robot | None = None, path: str | Path | None = None) -> Robot:
+    """The registered robot whose articulation an npz of ``skel`` holds: ``robot``, or the robot
+    ``skel`` is named after; refused (OutputError) where ``skel`` is not that robot's skeleton (scaled,
+    augmented): its articulation would not match the motion."""
+    if robot is None:
+        try:
+            robot = load_robot(skel.name)
+        except UnknownRobotError:
+            robot = None
+    if robot is None or robot.skeleton.fingerprint != skel.fingerprint:
+        raise OutputError(
+            f"the motion's skeleton {skel.name!r} is not a registered robot's (scaled or edited); an npz holds the "
+            "robot's own articulation",
+            path=path, fix="retarget to the registered robot, or write the CSV (-o) instead",
+        )  # fmt: skip
+    return robot
+
+
+def write_npz(
+    path: str | Path, motion: TargetMotion, *, tracker: str, fps: float | None = NPZ_FPS, robot: Robot | None = None
+) -> Path:
+    """The npz ``tracker`` (``"mjlab"`` or ``"beyondmimic"``) reads, at ``fps`` [Hz] (see the module
+    docstring); ``robot``: the motion's robot, when resolved already.
+
+    Raises:
+        MerError: no or an unknown tracker (both choices named); OutputError: non-finite values, a
+        skeleton that is not a registered robot's, a frame rate that is not a whole number of Hz.
+    """
+    tracker = require_tracker(tracker, "tracker=")
     check_motion_finite(motion, path)
-    links = None
-    if order == "isaaclab":
-        cols, links = isaaclab_order(motion.skeleton)
-    else:
-        cols = csv_columns(motion.skeleton, robot)
+    art = articulation(npz_robot(motion.skeleton, robot, path))
+    if art.ball_joints:
+        log.warning("%s: the MJCF's ball joints %s are written as three hinges each (_x, _y, _z), as in the model "
+                    "`mer robots export --mjcf` writes, not as the MJCF's quaternions", path, ", ".join(art.ball_joints))  # fmt: skip
     if fps is not None:
         motion = resample_motion(motion, fps)
-    jp = _joint_matrix(motion, cols)
+    rate = int(round(motion.fps))
+    if abs(motion.fps - rate) > 1e-9 or rate <= 0:
+        raise OutputError(f"an npz's fps is a whole number of Hz (the trackers' converters write an int), not {motion.fps:g}",
+                          path=path, fix="give --npz-fps a whole number, e.g. 50")  # fmt: skip
+    joints, bodies = art.order(tracker)
+    jp = art.joint_values(motion.q)[:, joints]
+    node_pos, node_rot = motion.forward_kinematics()
+    pos, rot = art.body_poses(node_pos, node_rot)
+    pos, rot = pos[:, bodies], rot[:, bodies]
+    if tracker == "beyondmimic":  # Isaac Lab logs each link's centre-of-mass velocity
+        com = np.stack([art.bodies[b].com for b in bodies])
+        moving = pos + np.einsum("fbij,bj->fbi", rot, com)
+    else:  # mjlab logs body_link_lin_vel_w: the body frame's origin
+        moving = pos
     arrays = {
-        "fps": np.array(motion.fps),
+        "fps": np.array([rate], np.int64),
         "joint_pos": jp.astype(np.float32),
         "joint_vel": finite_difference(torch.from_numpy(jp), motion.fps, dim=0).numpy().astype(np.float32),
-        "joint_names": np.array(cols),
+        "body_pos_w": pos.astype(np.float32),
+        "body_quat_w": matrix_to_quat(torch.from_numpy(rot)).numpy().astype(np.float32),
+        "body_lin_vel_w": finite_difference(torch.from_numpy(moving), motion.fps, dim=0).numpy().astype(np.float32),
+        "body_ang_vel_w": _angular_velocity(rot, motion.fps).astype(np.float32),
+        "joint_names": np.array([art.joints[j].name for j in joints]),
+        "body_names": np.array([art.bodies[b].name for b in bodies]),
     }
-    for k, v in body_arrays(motion, links).items():
-        arrays[k] = v if k == "body_names" else v.astype(np.float32)
     require_finite(arrays, path=path, what="npz motion")
     buf = io.BytesIO()
     np.savez(buf, **arrays)
     return atomic_write(path, buf.getvalue())
 
 
-def write_mcap(path: str | Path, motion: TargetMotion, *, reference_points: np.ndarray | None = None) -> Path:
-    """Foxglove MCAP of the motion (see module docstring).
+def write_mcap(
+    path: str | Path, motion: TargetMotion, *, reference_points: np.ndarray | None = None, robot: Robot | None = None
+) -> Path:
+    """Foxglove MCAP of the motion (see the module docstring and :mod:`.foxglove_robot`).
 
     ``reference_points``: (F, K, 3) scaled reference key points [m] drawn as red spheres.
+    ``robot``: the motion's robot (default: the registered robot the skeleton is named after, when
+    the skeleton is that robot's; else the skeleton's own links are the frames).
     """
     from mcap.writer import Writer
 
-    from mer_data.shards.foxglove import (
-        FRAME_TRANSFORMS_SCHEMA,
-        SCENE_UPDATE_SCHEMA,
-        frame_transforms,
-        scene_update,
-        sphere_scene,
-    )
+    from mer_data.shards.foxglove import FRAME_TRANSFORMS_SCHEMA, SCENE_UPDATE_SCHEMA, sphere_scene
+
+    from .foxglove_robot import DESCRIPTION_SCHEMA, description_message, link_frames, robot_scene, skeleton_scene, tf_messages
 
     check_motion_finite(motion, path)
     if reference_points is not None:
         require_finite({"reference_points": reference_points}, path=path, what="reference key points")
     skel = motion.skeleton
-    prefix = skel.name
-    base_rotvec = matrix_to_axis_angle(torch.from_numpy(motion.base_rot)).numpy()
+    try:
+        robot = npz_robot(skel, robot, path)
+    except OutputError:
+        robot = None  # not a registered robot's skeleton: its nodes' links are the frames
+    node_pos, node_rot = motion.forward_kinematics()
+    frames = link_frames(skel, node_pos, node_rot, robot)
     buf = io.BytesIO()
     w = Writer(buf)
     w.start(profile="", library="mer")
@@ -279,13 +296,20 @@ def write_mcap(path: str | Path, motion: TargetMotion, *, reference_points: np.n
     sc_schema = w.register_schema("foxglove.SceneUpdate", "jsonschema", SCENE_UPDATE_SCHEMA)
     tf = w.register_channel("/tf", "json", tf_schema)
     sk = w.register_channel("/skeleton", "json", sc_schema)
-    frames = frame_transforms(skel, prefix, motion.base_pos, base_rotvec, motion.q, 0, motion.fps)
-    w.add_message(sk, log_time=0, publish_time=0, data=scene_update(skel, prefix, 0))
-    for seq, (ns, data) in enumerate(frames):
+    w.add_message(sk, log_time=0, publish_time=0, data=skeleton_scene(skel, 0))
+    if robot is not None:
+        rb = w.register_channel("/robot", "json", sc_schema)
+        w.add_message(rb, log_time=0, publish_time=0, data=robot_scene(robot, 0))
+        text = description_message(robot)
+        if text is not None:
+            ds = w.register_channel("/robot_description", "json", w.register_schema("std_msgs/String", "jsonschema", DESCRIPTION_SCHEMA))
+            w.add_message(ds, log_time=0, publish_time=0, data=text)
+    msgs = tf_messages(frames, motion.fps)
+    for seq, (ns, data) in enumerate(msgs):
         w.add_message(tf, log_time=ns, publish_time=ns, data=data, sequence=seq)
     if reference_points is not None:
         rc = w.register_channel("/reference", "json", sc_schema)
-        for seq, (ns, _) in enumerate(frames):
+        for seq, (ns, _) in enumerate(msgs):
             msg = sphere_scene(reference_points[seq], ns, entity_id="reference")
             w.add_message(rc, log_time=ns, publish_time=ns, data=msg, sequence=seq)
     w.finish()

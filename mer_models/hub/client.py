@@ -7,20 +7,31 @@ so set them before starting Python). Offline mode is honoured more strictly than
 time, and when it is on, the zoo calls no client function that can reach the network at all; it
 only looks files up in the cache (``try_to_load_from_cache``, pure filesystem). A file that is
 cached at a pinned commit is likewise never re-fetched or re-validated over the network.
+
+Downloads (:func:`fetch_file`) do not go through ``hf_hub_download``: the client turns the server's
+ETag into a cache path unchecked (``blobs/<etag>``; ``../..`` in it writes outside the cache), so mer
+asks for the metadata, checks it, downloads into a private temporary file, verifies the bytes and
+only then moves them into the cache, in the client's own layout.
 """
 
 from __future__ import annotations
 
 import contextlib
 import contextvars
+import errno
+import hashlib
 import logging
 import os
+import re
+import tempfile
 from pathlib import Path
 from typing import Any, Iterator
 
+from mer_data.base.atomic import atomic_write, owner_tag
 from mer_data.base.errors import ChecksumError, ModelNotAvailableError, ModelZooError
+from mer_data.base.limits import limit, too_big
 
-from .names import validate_filename, validate_repo_id, validate_revision
+from .names import is_commit, validate_filename, validate_repo_id, validate_revision
 
 log = logging.getLogger(__name__)
 
@@ -102,10 +113,72 @@ def cached_file(repo_id: str, filename: str, revision: str) -> Path | None:
     return Path(found) if isinstance(found, str) else None
 
 
-def fetch_file(repo_id: str, filename: str, revision: str, *, what: str) -> Path:
-    """Download one file through ``hf_hub_download`` into the Hub cache; returns the snapshot path.
+_CONTENT_ID = re.compile(r"^(?:[0-9a-f]{40}|[0-9a-f]{64})$")
+#: files whose size is capped at download (they are read whole): name -> limit
+_SIZE_LIMITS = {"config.json": "MER_MAX_CONFIG_BYTES"}
 
-    Refuses in offline mode (callers look in the cache first). Client errors become
+
+def _refuse(what: str, filename: str, message: str, fix: str = "check HF_ENDPOINT: the server does not behave as the Hub does"):
+    return ModelZooError(f"{what}: {message}; nothing was written", element=filename, fix=fix)
+
+
+def _download_blob(url: str, dest_dir: Path, etag: str, size: int, headers: dict[str, str], what: str, filename: str) -> Path:
+    """Stream ``url`` into a private temporary file in ``dest_dir``: at most ``size`` bytes, hashed on the
+    fly and checked against ``etag`` (sha256 for LFS files, the git blob sha1 otherwise). Returns it."""
+    from huggingface_hub.utils import get_session, hf_raise_for_status
+
+    h = hashlib.sha256() if len(etag) == 64 else hashlib.sha1(f"blob {size}\0".encode())
+    fd, tmp = tempfile.mkstemp(prefix=f".tmp-{etag}~{owner_tag()}~", dir=dest_dir)
+    got = 0
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            with get_session().stream("GET", url, headers=headers, follow_redirects=True, timeout=60) as r:
+                hf_raise_for_status(r)
+                for chunk in r.iter_bytes(1 << 20):
+                    got += len(chunk)
+                    if got > size:
+                        raise ChecksumError(f"{what}: the server sent more than the {size:,} bytes it announced for {filename}",
+                                            element=filename, fix="check HF_ENDPOINT; nothing was kept")  # fmt: skip
+                    h.update(chunk)
+                    fh.write(chunk)
+            fh.flush()
+            os.fsync(fh.fileno())
+        if got != size:
+            raise ChecksumError(f"{what}: the download of {filename} was cut short ({got:,} of {size:,} bytes)",
+                                element=filename, fix="run the command again; nothing was kept")  # fmt: skip
+        if h.hexdigest() != etag:
+            raise ChecksumError(f"{what}: {filename} hashes to {h.hexdigest()}, but the Hub served it as {etag}; the file "
+                                "was not used and nothing was kept", element=filename,
+                                fix="check HF_ENDPOINT, then run the command again")  # fmt: skip
+        os.chmod(tmp, 0o644)
+        return Path(tmp)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _install(storage: Path, tmp_blob: Path, etag: str, commit: str, filename: str, revision: str) -> Path:
+    """Move a verified blob into the cache (huggingface_hub's layout) and link its snapshot entry."""
+    blob = storage / "blobs" / etag
+    os.replace(tmp_blob, blob)
+    pointer = storage / "snapshots" / commit / filename
+    pointer.parent.mkdir(parents=True, exist_ok=True)
+    link = pointer.parent / f".tmp-{pointer.name}~{owner_tag()}~{os.urandom(4).hex()}"
+    os.symlink(os.path.relpath(blob, pointer.parent), link)
+    os.replace(link, pointer)  # replaces the name, never what a link there points to
+    if revision != commit:
+        atomic_write(storage / "refs" / revision, commit)
+    return pointer
+
+
+def fetch_file(repo_id: str, filename: str, revision: str, *, what: str) -> Path:
+    """Download one file into the Hub cache (huggingface_hub's layout); returns the snapshot path.
+
+    What the server says is checked before it becomes a path or a byte on disk: the ETag must be a
+    content id (40 or 64 hex digits), the commit a 40-hex id, the size within the file's limit
+    (``config.json``: ``MER_MAX_CONFIG_BYTES``). The bytes go to a private temporary file, capped at
+    the announced size and hashed on the fly; only a file that hashes to its ETag is moved into the
+    cache. Refuses in offline mode (callers look in the cache first). Client errors become
     :class:`~mer_data.base.errors.ModelZooError` subclasses that say what to do.
     """
     validate_repo_id(repo_id)
@@ -118,19 +191,41 @@ def fetch_file(repo_id: str, filename: str, revision: str, *, what: str) -> Path
             fix=f"run `mer zoo download {what}` once while online (unset HF_HUB_OFFLINE), or point HF_HUB_CACHE at a "
             "cache that has it",
         )
-    from huggingface_hub import hf_hub_download
+    import httpx2
+    from huggingface_hub import get_hf_file_metadata, hf_hub_url
     from huggingface_hub.errors import (
         HfHubHTTPError,
-        LocalEntryNotFoundError,
         RemoteEntryNotFoundError,
         RepositoryNotFoundError,
         RevisionNotFoundError,
     )
+    from huggingface_hub.utils import build_hf_headers
 
     where = f"{repo_id}@{revision} on {endpoint()}"
+    token = _SETTINGS.get().get("token")
+    size: int | None = None
     try:
-        path = hf_hub_download(repo_id, filename, revision=revision, cache_dir=str(cache_dir()), library_name="mer",
-                               token=_SETTINGS.get().get("token"))
+        url = hf_hub_url(repo_id, filename, revision=revision, endpoint=endpoint())
+        meta = get_hf_file_metadata(url, token=token, library_name="mer", endpoint=endpoint())
+        etag, commit, size = meta.etag, meta.commit_hash, meta.size
+        if not isinstance(etag, str) or not _CONTENT_ID.match(etag):
+            raise _refuse(what, filename, f"the server gave {filename} the ETag {str(etag)[:80]!r}, which is not a content id "
+                          "(40 or 64 hex digits)")  # fmt: skip
+        if not is_commit(commit):
+            raise _refuse(what, filename, f"the server gave the commit id {str(commit)[:80]!r}, not 40 hex digits")
+        if not isinstance(size, int) or size < 0:
+            raise _refuse(what, filename, f"the server gave {filename} no valid size ({size!r})")
+        name = filename.rsplit("/", 1)[-1]
+        if name in _SIZE_LIMITS and size > limit(_SIZE_LIMITS[name]):
+            msg, fix = too_big(_SIZE_LIMITS[name], size)
+            raise _refuse(what, filename, f"{filename} is announced with {size:,} bytes: {msg}", fix)
+        storage = repo_cache_folder(repo_id)
+        (storage / "blobs").mkdir(parents=True, exist_ok=True)
+        same_origin = meta.location.startswith(endpoint().rstrip("/") + "/")
+        headers = build_hf_headers(token=token if same_origin else False, library_name="mer")
+        headers["Accept-Encoding"] = "identity"  # bytes as stored: no decompression bomb on the way
+        tmp = _download_blob(meta.location, storage / "blobs", etag, size, headers, what, filename)
+        path = _install(storage, tmp, etag, commit, filename, revision)
     except RepositoryNotFoundError:
         raise ModelZooError(f"{what}: the repository {repo_id} does not exist on {endpoint()} (or it is private)",
                             element=repo_id, fix="check the repo id; for a private repository set HF_TOKEN") from None
@@ -140,19 +235,19 @@ def fetch_file(repo_id: str, filename: str, revision: str, *, what: str) -> Path
     except RemoteEntryNotFoundError:
         raise ModelZooError(f"{what}: {filename} is missing from {where}", element=filename,
                             fix="the repository does not hold a mer checkpoint at that revision") from None
-    except LocalEntryNotFoundError as exc:
-        raise ModelNotAvailableError(
-            f"{what}: cannot reach {endpoint()} to download {filename} and it is not cached ({type(exc.__cause__ or exc).__name__})",
-            element=filename,
-            fix=f"check the network (and HF_ENDPOINT), then run `mer zoo download {what}`",
-        ) from None
     except HfHubHTTPError as exc:
         code = exc.response.status_code if exc.response is not None else "?"
         raise ModelZooError(f"{what}: the Hub answered HTTP {code} for {filename} ({where})", element=filename,
                             fix="retry later; for a private repository set HF_TOKEN") from None
-    except OSError as exc:  # the client's size consistency check, disk errors
-        if "Consistency check failed" in str(exc):
-            raise ChecksumError(f"{what}: the download of {filename} was cut short ({where})", element=filename,
-                                fix="run the command again; nothing was kept") from None
+    except (httpx2.TransportError, httpx2.InvalidURL, ValueError) as exc:
+        raise ModelNotAvailableError(
+            f"{what}: cannot download {filename} from {endpoint()} ({type(exc).__name__}: {exc})",
+            element=filename,
+            fix=f"check the network (and HF_ENDPOINT), then run `mer zoo download {what}`",
+        ) from None
+    except OSError as exc:
+        if exc.errno == errno.ENOSPC:
+            raise ModelZooError(f"{what}: the disk is full: cannot store {filename} ({size or 0:,} bytes) in {cache_dir()}",
+                                path=cache_dir(), element=filename, fix="free space, or point HF_HUB_CACHE elsewhere") from None
         raise ModelZooError(f"{what}: cannot download {filename}: {exc}", element=filename) from None
-    return Path(path)
+    return path

@@ -22,6 +22,7 @@ from pathlib import Path
 
 from mer_data.base.atomic import atomic_write
 from mer_data.base.errors import ModelZooError, UnknownModelError
+from mer_data.base.suggest import close_matches, did_you_mean
 from mer_data.robots.registry import mer_home
 
 from .card import ModelCard, read_card
@@ -122,8 +123,15 @@ class Registry:
         return sorted(self.entries())
 
     def get(self, name: str) -> ModelEntry:
-        """The entry for ``name``; an unknown name raises :class:`UnknownModelError` listing the known ones."""
-        validate_model_name(name)
+        """The entry for ``name``; an unknown name raises :class:`UnknownModelError` with the closest known
+        names ("did you mean 'mer-base'?") and the list of all of them."""
+        try:
+            validate_model_name(name)
+        except ModelZooError as exc:
+            hint = did_you_mean(name, self.names()) if isinstance(name, str) else ""
+            if not hint:
+                raise
+            raise ModelZooError(f"{exc.message}; {hint}", element=exc.element, fix=exc.fix) from None
         entries = self.entries()
         if name in entries:
             return entries[name]
@@ -131,10 +139,12 @@ class Registry:
         if user_path.is_file():  # present but broken: say why
             read_card(user_path)
         known = ", ".join(sorted(entries)) or "none"
+        hint = did_you_mean(name, sorted(entries))
+        fix = "pick one of the known names (`mer zoo list`), pass a checkpoint folder, or a Hub id ORG/NAME"
         raise UnknownModelError(
-            f"unknown model {name!r}; known models: {known}",
+            f"unknown model {name!r}; " + (f"{hint} (known models: {known})" if hint else f"known models: {known}"),
             element=name,
-            fix="pick one of the known names (`mer zoo list`), pass a checkpoint folder, or a Hub id ORG/NAME",
+            fix=f"use {close_matches(name, sorted(entries))[0]!r}, or {fix}" if hint else fix,
         )
 
     def is_builtin(self, name: str) -> bool:

@@ -5,7 +5,7 @@ A spec resolves, in this order, to:
 1. an existing local folder: used as is (no network; nothing to verify it against);
 2. a zoo name: its card gives the Hub repo, the pinned commit and each file's sha256 and size;
    bundled models load from the package, others from the Hub cache, downloading what is missing
-   through ``hf_hub_download``; every file is verified before use;
+   (:func:`.client.fetch_file`: checked metadata, private temporary file); every file is verified before use;
 3. a plain Hub id ``ORG/NAME`` with no card: ``config.json`` and ``model.safetensors`` at the
    given revision (default ``main``) are fetched and checked against the Hub's own content ids;
    no independent checksum exists, so the resolved commit is reported for pinning.
@@ -161,6 +161,9 @@ def resolve(spec: str | Path, revision: str | None = None, registry: Registry | 
     """Resolve a local folder, a zoo name or a Hub id to verified local files (see module docstring)."""
     reg = _registry(registry)
     text = str(spec)
+    if not text.strip():
+        raise ModelZooError("empty model name or path (it would mean the current folder)", element="name",
+                            fix="pass a zoo name (e.g. mer-base), a checkpoint folder or ORG/NAME")  # fmt: skip
     p = Path(text).expanduser()
     try:
         local = p.is_dir()

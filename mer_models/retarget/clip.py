@@ -34,10 +34,10 @@ from mer_models.batch import graph_from_batch
 from mer_models.config import EnergyConfig, SamplerConfig
 from mer_models.export.writers import (
     NPZ_FPS,
-    NPZ_ORDERS,
     TargetMotion,
     check_motion_finite,
-    isaaclab_order,
+    npz_robot,
+    require_tracker,
     write_csv,
     write_mcap,
     write_npz,
@@ -78,6 +78,7 @@ class RetargetResult:
     reference_nodes: np.ndarray | None = None
     reference_skeleton: Skeleton | None = None
     prepared: tuple | None = None
+    metrics: dict | None = None  # retarget_file(metrics=True): the paper's metrics and the artifact figures
 
 
 def source_features(base_pos: np.ndarray, base_quat: np.ndarray, q: np.ndarray, skel: Skeleton, fps: float) -> np.ndarray:
@@ -241,6 +242,9 @@ def retarget_features_many(
     if method == "diffusion":
         if checkpoint is None:
             raise MerError("the diffusion method needs a model", fix="pass --model PATH, or use --method optimize")
+        if ref.name == "bvh":  # mer_data.motion.sources.BVH_SOURCE
+            raise MerError("the model was trained on robot sources only: it has never seen a human (BVH) source",
+                           fix="use --method optimize (the default for .bvh input)")  # fmt: skip
         if not allow_unseen:
             for t in tgts:
                 check_robot(checkpoint, t.name, "targets", t.fingerprint)
@@ -290,53 +294,62 @@ def retarget_file(
     plot: str | Path | None = None,
     video: str | Path | None = None,
     video_fps: float | None = None,
+    video_range: tuple[float, float | None] | None = None,
     model: str | Path | None = None,
     method: str = "diffusion",
     input_fps: float = MODEL_FPS,
     device: str = "cpu",
     npz_fps: float | None = NPZ_FPS,
-    npz_order: str = "mjlab",
+    npz_for: str | None = None,
+    bvh=None,
+    metrics: bool = False,
     **kw,
 ) -> RetargetResult:
-    """Read a LAFAN1-layout CSV of ``source``, retarget it to ``target`` and write the outputs.
+    """Read a LAFAN1-layout CSV of ``source`` (or a BVH of a human: ``source`` ``"bvh"`` or a
+    ``.bvh`` input, read with ``bvh``, :class:`~mer_data.motion.sources.BvhOptions`;
+    :func:`mer_data.motion.sources.read_source`), retarget it to ``target`` and write the outputs.
 
     ``video`` (.gif or .mp4, :mod:`mer_models.export.video`) shows the scaled reference and the result
-    side by side, at ``video_fps`` (default the motion's 30 Hz). Extra keywords go to
+    side by side, at ``video_fps`` (default the motion's 30 Hz), over ``video_range`` (start, end) [s]
+    (default the first 10 s). Extra keywords go to
     :func:`retarget_features`. Unknown robots, a CSV that does not match the source's layout,
     non-finite values, a model that never saw the target, a video format that cannot be written:
-    each a MerError.
+    each a MerError. ``metrics``: also :func:`sequence_metrics` of the result (``res.metrics``).
     """
-    from mer_data.motion.lafan1 import read_lafan1_csv
-    from mer_data.motion.resample import resample
-
     if video is not None:
         from mer_models.export.video import check_video_path
 
         check_video_path(video, video_fps)  # before the work: a bad ending or a missing ffmpeg fails at once
 
-    src_robot, tgt_robot = as_robot(source), as_robot(target)  # resolved once: below, Robots only
-    if npz is not None and npz_order != "mjlab":  # refuse an order that cannot be written before the work
-        if npz_order not in NPZ_ORDERS:
-            raise MerError(f"unknown npz order {npz_order!r}", fix=f"use one of {', '.join(NPZ_ORDERS)}")
-        isaaclab_order(tgt_robot.skeleton)
+    from mer_data.motion.sources import BVH_SOURCE, is_bvh_source, read_source
+
+    human = is_bvh_source(input_csv, source)
+    src_robot = BVH_SOURCE if human else as_robot(source)  # resolved once: below, Robots only
+    tgt_robot = as_robot(target)
+    if npz is not None:  # refuse an npz that cannot be written before the work: which tracker reads it
+        require_tracker(npz_for, "npz_for=")
+        npz_robot(tgt_robot.skeleton, tgt_robot, npz)
     checkpoint = resolve_model(model, device) if (model is not None and method == "diffusion") else None
     if method == "diffusion" and checkpoint is None:
         raise MerError("the diffusion method needs a model", fix="pass --model PATH, or use --method optimize")
-    motion = read_lafan1_csv(input_csv, src_robot, fps=input_fps)
-    if motion.fps != MODEL_FPS:
-        motion = resample(motion, MODEL_FPS)
-    skel = src_robot.skeleton
-    feats = source_features(motion.base_pos, motion.base_quat, motion.node_angles(skel), skel, MODEL_FPS)
+    src = read_source(input_csv, src_robot, fps=input_fps, bvh=bvh)
+    skel, feats = src.skeleton, src.features()
+    for note in src.notes:
+        log.info("%s: %s", input_csv, note)
     if kw.get("physics") is not None:
         from mer_data.robots.collision import collision_model
 
         kw["geometry"] = [collision_model(tgt_robot)]
     res = retarget_features(feats, skel, tgt_robot.skeleton, method=method, checkpoint=checkpoint, fps=MODEL_FPS, **kw)
     check_motion_finite(res.motion, out_csv or npz or mcap or plot or video)  # all outputs or none
+    if metrics:
+        from mer_data.robots.collision import collision_model
+
+        res.metrics = sequence_metrics(feats, skel, res.motion, prepared=res.prepared, geometry=collision_model(tgt_robot))
     if out_csv is not None:
         res.outputs["csv"] = write_csv(out_csv, res.motion, robot=tgt_robot)
     if npz is not None:
-        res.outputs["npz"] = write_npz(npz, res.motion, fps=npz_fps, order=npz_order, robot=tgt_robot)
+        res.outputs["npz"] = write_npz(npz, res.motion, tracker=npz_for, fps=npz_fps, robot=tgt_robot)
     if mcap is not None:
         res.outputs["mcap"] = write_mcap(mcap, res.motion, reference_points=res.reference_points)
     if plot is not None:
@@ -347,7 +360,8 @@ def retarget_file(
         from mer_models.export.video import write_video
 
         res.outputs["video"] = write_video(video, res.motion, res.reference_points, reference_nodes=res.reference_nodes,
-                                           reference_skeleton=res.reference_skeleton, fps=video_fps)  # fmt: skip
+                                           reference_skeleton=res.reference_skeleton, fps=video_fps,
+                                           time_range=video_range)  # fmt: skip
     return res
 
 

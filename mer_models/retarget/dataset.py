@@ -3,7 +3,7 @@
 ``mer retarget --input DIR|hf://REPO --source g1 --targets h1 atlas --out OUT``:
 
 * **Outputs** per (target, clip): ``OUT/<target>/<clip>.csv`` (the target's LAFAN1-style layout),
-  optionally ``.npz`` (BeyondMimic layout), and ``<clip>.metrics.json`` (the paper's metrics of
+  optionally ``.npz`` (for the tracker ``npz_for`` names), and ``<clip>.metrics.json`` (the paper's metrics of
   that retarget). Each file is written atomically; the metrics file is written last, so its
   presence means the (target, clip) is finished.
 * **Resumable**: finished (target, clip) pairs are skipped; a run killed at any point leaves no
@@ -38,6 +38,7 @@ import torch
 
 from mer_data.base.atomic import atomic_write, sweep_stale
 from mer_data.base.errors import MerError
+from mer_data.base.locks import hold_locks
 from mer_data.kinematics.jointmap import joint_map
 from mer_data.kinematics.rotations import axis_angle_to_matrix
 from mer_data.motion.samples import TrainingSample, collate
@@ -46,17 +47,17 @@ from mer_data.robots.registry import Robot, as_robot
 from mer_data.skeleton import Skeleton
 from mer_models.batch import graph_from_batch
 from mer_models.config import EnergyConfig
-from mer_models.export.writers import NPZ_FPS, TargetMotion, write_csv, write_npz
+from mer_models.export.writers import NPZ_FPS, TargetMotion, require_tracker, write_csv, write_npz
 from mer_models.solver.optimize import optimize_motion
 from mer_models.zoo.checkpoint import Checkpoint
 
 from .artifacts import ARTIFACT_KEYS
-from .clip import MODEL_FPS, retarget_features_many, sequence_metrics, source_features
+from .clip import MODEL_FPS, retarget_features_many, sequence_metrics
 from .long_horizon import prepare_reference
 
 log = logging.getLogger(__name__)
 
-__all__ = ["FORMATS", "Job", "find_clips", "plan_jobs", "retarget_dataset", "format_summary"]
+__all__ = ["FORMATS", "Job", "find_clips", "find_bvh_clips", "plan_jobs", "retarget_dataset", "format_summary"]
 
 FORMATS = ("csv", "npz")
 SUMMARY_KEYS = ("g_mpbpe", "mpboe", "mpbve", "jerk_frame", "limit_violation", *ARTIFACT_KEYS, "selfpen_worst", "speed_worst")
@@ -95,6 +96,15 @@ def find_clips(input_spec: str, source: str) -> dict[str, Path]:
     return discover_clips(root.parent, [root.name])[root.name]  # the same regular-file and duplicate checks
 
 
+def find_bvh_clips(input_spec: str) -> dict[str, Path]:
+    """clip name → BVH file of a local folder (:func:`mer_data.motion.sources.bvh_files`)."""
+    from mer_data.motion.sources import bvh_files
+
+    if str(input_spec).startswith("hf://"):
+        raise MerError("BVH input is read from a local folder", fix="download the files and pass --input DIR")
+    return bvh_files(input_spec)
+
+
 def plan_jobs(clips: dict[str, Path], targets: Sequence[str], out_dir: Path, shard_index: int = 0, num_shards: int = 1) -> list[Job]:
     """This shard's jobs: every ``num_shards``-th of the (target, clip) pairs sorted by target, clip."""
     if num_shards < 1 or not 0 <= shard_index < num_shards:
@@ -114,6 +124,7 @@ class _Clip:
     rot_mask: np.ndarray  # (Jr,)
     shift: np.ndarray  # (3,)
     world_feats: np.ndarray
+    src: Skeleton  # the source's skeleton (a robot's, or this clip's human's)
     q: np.ndarray = field(init=False)
     base_pos: np.ndarray = field(init=False)
     base_rot: np.ndarray = field(init=False)
@@ -142,22 +153,19 @@ def _segments(n: int, segment: int, context: int) -> list[tuple[int, int, int, i
     return out
 
 
-def _source(job: Job, source: Robot, fps: float) -> np.ndarray:
-    """(N, Jr, 9) world features of a job's source clip at the model's frame rate."""
-    from mer_data.motion.lafan1 import read_lafan1_csv
-    from mer_data.motion.resample import resample
+def _source(job: Job, source: Robot | str, fps: float, bvh=None) -> tuple[Skeleton, np.ndarray]:
+    """A job's source skeleton and (N, Jr, 9) world features of its clip at the model's frame rate
+    (:func:`mer_data.motion.sources.read_source`: a robot's CSV, or a human's BVH)."""
+    from mer_data.motion.sources import read_source
 
-    src = source.skeleton
-    motion = read_lafan1_csv(job.source_path, source, fps=fps)
-    if motion.fps != MODEL_FPS:
-        motion = resample(motion, MODEL_FPS)
-    return source_features(motion.base_pos, motion.base_quat, motion.node_angles(src), src, MODEL_FPS)
+    src = read_source(job.source_path, source, fps=fps, bvh=bvh)
+    return src.skeleton, src.features()
 
 
-def _read(job: Job, source: Robot, target: Skeleton, fps: float) -> _Clip:
-    feats = _source(job, source, fps)
-    f, scaled, shift, (goal_rot, rot_mask) = prepare_reference(feats, source.skeleton, target)
-    return _Clip(job, f, scaled, goal_rot, rot_mask, shift, feats)
+def _read(job: Job, source: Robot | str, target: Skeleton, fps: float, bvh=None) -> _Clip:
+    src, feats = _source(job, source, fps, bvh)
+    f, scaled, shift, (goal_rot, rot_mask) = prepare_reference(feats, src, target)
+    return _Clip(job, f, scaled, goal_rot, rot_mask, shift, feats, src)
 
 
 def _lock_stance(c: _Clip, src: Skeleton, geometry, physics) -> None:
@@ -171,12 +179,19 @@ def _lock_stance(c: _Clip, src: Skeleton, geometry, physics) -> None:
     c.goal = inputs.lock_goals(torch.from_numpy(c.scaled)[None])[0].numpy()
 
 
-def _solve_batch(items: list[tuple[_Clip, tuple[int, int, int, int]]], src: Skeleton, target: Skeleton, span: int,
+def _solve_batch(items: list[tuple[_Clip, tuple[int, int, int, int]]], target: Skeleton, span: int,
                  energy: EnergyConfig, device: str, physics=None, geometry=None) -> None:  # fmt: skip
-    """Optimise segments of several clips in one batch and write their cores back into the clips
-    (``physics``: a :class:`~mer_models.solver.physics.PhysicsConfig`, with the target's ``geometry``)."""
-    eta = joint_map(target, src)
+    """Optimise segments of several clips (sources of one node count) in one batch and write their
+    cores back into the clips (``physics``: a :class:`~mer_models.solver.physics.PhysicsConfig`, with
+    the target's ``geometry``)."""
+    src = items[0][0].src
+    etas = {}
+    for c, _ in items:
+        if c.src.fingerprint not in etas:
+            etas[c.src.fingerprint] = joint_map(target, c.src)
+    eta_b = np.stack([etas[c.src.fingerprint] for c, _ in items])  # (B, Jt, Jr)
     B = len(items)
+    span = min(span, max(b - a for _, (a, b, _, _) in items))  # short clips (BVH: 100-300 frames) are not padded to a full segment
 
     def pad(x: np.ndarray) -> np.ndarray:
         return x if len(x) == span else np.concatenate([x, np.repeat(x[-1:], span - len(x), 0)])
@@ -184,20 +199,20 @@ def _solve_batch(items: list[tuple[_Clip, tuple[int, int, int, int]]], src: Skel
     goal = np.stack([pad(c.goal[a:b]) for c, (a, b, _, _) in items])
     grot = np.stack([pad(c.goal_rot[a:b]) for c, (a, b, _, _) in items])
     rvec = np.stack([pad(c.feats[a:b, 0, 0:3]) for c, (a, b, _, _) in items])
-    one = collate([TrainingSample(items[0][0].feats[:3].astype(np.float32), src, target, eta)])  # the target's graph
+    one = collate([TrainingSample(items[0][0].feats[:3].astype(np.float32), src, target, eta_b[0])])  # the target's graph
     g = graph_from_batch(one, "tgt", device).select(torch.zeros(B, dtype=torch.long, device=device))
     phys = None
     if physics is not None:
         from .clip import physics_inputs
 
         seg = dataclasses.replace(physics, lock_blend=-1)  # the stance lock is on the whole clip's goals (_lock_stance)
-        per = [physics_inputs(pad(c.feats[a:b]), src, geometry, MODEL_FPS, seg) for c, (a, b, _, _) in items]
+        per = [physics_inputs(pad(c.feats[a:b]), c.src, geometry, MODEL_FPS, seg) for c, (a, b, _, _) in items]
         phys = dataclasses.replace(per[0], contacts=torch.cat([p.contacts for p in per]))
     out = optimize_motion(
-        energy, g, torch.from_numpy(eta.astype(np.float32))[None].expand(B, -1, -1).to(device),
+        energy, g, torch.from_numpy(eta_b.astype(np.float32)).to(device),
         torch.from_numpy(goal).float().to(device), axis_angle_to_matrix(torch.from_numpy(rvec).float()).to(device),
         goal_rot=torch.from_numpy(grot).float().to(device),
-        rot_mask=torch.from_numpy(items[0][0].rot_mask)[None].expand(B, -1).to(device), physics=phys,
+        rot_mask=torch.from_numpy(np.stack([c.rot_mask for c, _ in items])).to(device), physics=phys,
     )  # fmt: skip
     q, bp, br = (out[k].double().cpu().numpy() for k in ("q", "base_pos", "base_rot"))
     for k, (c, (a, _, s, e)) in enumerate(items):
@@ -207,8 +222,8 @@ def _solve_batch(items: list[tuple[_Clip, tuple[int, int, int, int]]], src: Skel
         c.pending -= 1
 
 
-def _finish(c: _Clip, target: Robot, src: Skeleton, formats: Sequence[str], method: str, seconds: float,
-            npz_fps: float | None = NPZ_FPS, physics=None, geometry=None) -> dict:  # fmt: skip
+def _finish(c: _Clip, target: Robot, formats: Sequence[str], method: str, seconds: float,
+            npz_fps: float | None = NPZ_FPS, physics=None, geometry=None, npz_for: str | None = None) -> dict:  # fmt: skip
     """Write a finished clip's outputs (metrics file last) and return its summary row (with
     ``physics``, the whole motion made feasible first: :func:`.clip.feasible_motion`)."""
     skel = target.skeleton
@@ -218,7 +233,7 @@ def _finish(c: _Clip, target: Robot, src: Skeleton, formats: Sequence[str], meth
 
         motion = feasible_motion(motion, geometry, physics)
     prepared = (c.feats, c.scaled, c.shift, (c.goal_rot, c.rot_mask))
-    return _write(c.job, target, motion, c.world_feats, src, formats, method, seconds, prepared, npz_fps)
+    return _write(c.job, target, motion, c.world_feats, c.src, formats, method, seconds, prepared, npz_fps, npz_for)
 
 
 def _finite_or_none(v):
@@ -227,11 +242,12 @@ def _finite_or_none(v):
 
 
 def _write(job: Job, target: Robot, motion: TargetMotion, world_feats: np.ndarray, src: Skeleton, formats, method: str,
-           seconds: float, prepared: tuple | None = None, npz_fps: float | None = NPZ_FPS) -> dict:  # fmt: skip
+           seconds: float, prepared: tuple | None = None, npz_fps: float | None = NPZ_FPS,
+           npz_for: str | None = None) -> dict:  # fmt: skip
     if "csv" in formats:
         write_csv(job.output("csv"), motion, robot=target)
     if "npz" in formats:
-        write_npz(job.output("npz"), motion, fps=npz_fps, robot=target)
+        write_npz(job.output("npz"), motion, tracker=npz_for, fps=npz_fps, robot=target)
     metrics = sequence_metrics(world_feats, src, motion, prepared=prepared, geometry=collision_model(target))
     row = {"clip": job.clip, "target": job.target, "frames": motion.num_frames, "method": method, "seconds": round(seconds, 3),
            **{k: _finite_or_none(metrics.get(k)) for k in SUMMARY_KEYS}}  # fmt: skip
@@ -239,6 +255,28 @@ def _write(job: Job, target: Robot, motion: TargetMotion, world_feats: np.ndarra
     return row
 
 
+def _locked_out(fn: Callable[..., dict]) -> Callable[..., dict]:
+    """Run ``fn`` holding ``OUT/.retarget-<i>-of-<n>.lock``: a second run of the same shard into the
+    same ``--out`` is refused (one line naming the owner), as shard builds are."""
+    import functools
+    import inspect
+
+    sig = inspect.signature(fn)
+
+    @functools.wraps(fn)
+    def run(*args, **kwargs) -> dict:
+        a = sig.bind(*args, **kwargs)
+        a.apply_defaults()
+        out = Path(a.arguments["out_dir"])
+        out.mkdir(parents=True, exist_ok=True)
+        name = f"retarget-{int(a.arguments['shard_index']):05d}-of-{int(a.arguments['num_shards']):05d}"
+        with hold_locks(out, [name], MerError):
+            return fn(*args, **kwargs)
+
+    return run
+
+
+@_locked_out
 def retarget_dataset(
     input_spec: str,
     source: str | Robot,
@@ -252,6 +290,7 @@ def retarget_dataset(
     num_shards: int = 1,
     input_fps: float = MODEL_FPS,
     npz_fps: float | None = NPZ_FPS,
+    npz_for: str | None = None,
     segment: int = 512,
     context: int = 8,
     frames_per_batch: int = 8192,
@@ -259,6 +298,7 @@ def retarget_dataset(
     device: str = "cpu",
     progress: Callable[[int, int], None] | None = None,
     physics=None,
+    bvh=None,
     **model_kw,
 ) -> dict:
     """Retarget every clip of ``source`` in the input to every target (see the module docstring).
@@ -266,8 +306,12 @@ def retarget_dataset(
     Args:
         source, targets: robots, or names resolved here once (lower layers take the :class:`Robot`).
         method: ``optimize`` (batched across clips) or ``diffusion`` (``checkpoint`` required).
-        formats: any of :data:`FORMATS`; the metrics file is always written; npz_fps: npz frame rate [Hz].
+        formats: any of :data:`FORMATS`; the metrics file is always written; npz_fps: npz frame rate [Hz];
+            npz_for: the tracker that reads the npz files (required with ``npz``:
+            :data:`~mer_models.export.writers.NPZ_TRACKERS`).
         progress: called with (pairs done, pairs to do) of this run's work.
+        bvh: how to read BVH files (``source`` ``"bvh"``: a folder of human motion capture,
+            :func:`find_bvh_clips`), :class:`~mer_data.motion.sources.BvhOptions`.
         physics: a :class:`~mer_models.solver.physics.PhysicsConfig`: the optimiser's physical terms
             (both methods: ``diffusion`` with ``refine``); None: key points and orientations only.
         model_kw: options of ``diffusion`` (``steps``, ``guidance``, ``seed``, ``allow_unseen``, ``bf16``, and
@@ -278,6 +322,8 @@ def retarget_dataset(
         ``rows`` are the summary rows of every finished pair in ``out_dir`` (this run's and earlier ones).
     """
     unknown = [f for f in formats if f not in FORMATS]
+    if "npz" in formats:
+        require_tracker(npz_for, "npz_for=")
     if unknown:
         raise MerError(f"unknown output format(s) {unknown}; known: {', '.join(FORMATS)}")
     if method not in ("optimize", "diffusion"):
@@ -285,11 +331,13 @@ def retarget_dataset(
     if method == "diffusion" and checkpoint is None:
         raise MerError("the diffusion method needs a model", fix="pass --model NAME, or use --method optimize")
     out_dir = Path(out_dir)
-    src_robot = as_robot(source)
+    from mer_data.motion.sources import BVH_SOURCE
+
+    human = isinstance(source, str) and source.lower() == BVH_SOURCE
+    src_robot = BVH_SOURCE if human else as_robot(source)  # a human's skeleton is each clip's own
     robots = {r.name: r for r in map(as_robot, targets)}
-    source, targets = src_robot.name, list(robots)
-    src = src_robot.skeleton
-    clips = find_clips(input_spec, source)
+    source, targets = (BVH_SOURCE if human else src_robot.name), list(robots)
+    clips = find_bvh_clips(input_spec) if human else find_clips(input_spec, source)
     jobs = plan_jobs(clips, targets, out_dir, shard_index, num_shards)
     for t in set(targets):  # temporary files of killed runs (live writers' files are left alone)
         sweep_stale(out_dir / t)
@@ -304,14 +352,14 @@ def retarget_dataset(
         for _, cjobs in sorted(by_clip.items()):
             cjobs.sort(key=lambda j: j.target)
             t0 = time.perf_counter()
-            world = _source(cjobs[0], src_robot, input_fps)
+            src, world = _source(cjobs[0], src_robot, input_fps, bvh)
             results = retarget_features_many(world, src, [robots[j.target].skeleton for j in cjobs], method="diffusion", checkpoint=checkpoint,
                                              fps=MODEL_FPS, physics=physics,
                                              geometry=None if physics is None else [collision_model(robots[j.target]) for j in cjobs],
                                              **model_kw)  # fmt: skip
             seconds = (time.perf_counter() - t0) / len(cjobs)  # the pass is shared: each pair gets its share
             for j, res in zip(cjobs, results):
-                _write(j, robots[j.target], res.motion, world, src, formats, res.method, seconds, res.prepared, npz_fps)
+                _write(j, robots[j.target], res.motion, world, src, formats, res.method, seconds, res.prepared, npz_fps, npz_for)
                 frames_done += res.motion.num_frames
                 pairs_done += 1
                 if progress is not None:
@@ -325,23 +373,27 @@ def retarget_dataset(
         tjobs = [j for j in todo_optimize if j.target == target_name]
         span = segment + 2 * context
         per_batch = max(1, frames_per_batch // span)
-        queue: list[tuple[_Clip, tuple[int, int, int, int]]] = []
+        queues: dict[tuple, list[tuple[_Clip, tuple[int, int, int, int]]]] = {}  # per source node layout
         started: dict[str, float] = {}
         for k, j in enumerate(tjobs):
-            c = _read(j, src_robot, target.skeleton, input_fps)
-            _lock_stance(c, src, geometry, physics)
+            c = _read(j, src_robot, target.skeleton, input_fps, bvh)
+            _lock_stance(c, c.src, geometry, physics)
             started[j.clip] = time.perf_counter()
             segs = _segments(c.feats.shape[0], segment, context)
             c.pending = len(segs)
-            queue += [(c, s) for s in segs]
+            queues.setdefault(c.src.node_names, []).extend((c, s) for s in segs)
             last = k == len(tjobs) - 1
-            while len(queue) >= per_batch or (last and queue):
-                items, queue = queue[:per_batch], queue[per_batch:]
-                _solve_batch(items, src, target.skeleton, span, energy, device, physics, geometry)
-                for c2 in dict.fromkeys(c for c, _ in items):
-                    if c2.pending == 0:
-                        _finish(c2, target, src, formats, method, time.perf_counter() - started[c2.job.clip], npz_fps,
-                                physics, geometry)  # fmt: skip
+            for key in list(queues):
+                queue = queues[key]
+                while len(queue) >= per_batch or (last and queue):
+                    items, queue = queue[:per_batch], queue[per_batch:]
+                    queues[key] = queue
+                    _solve_batch(items, target.skeleton, span, energy, device, physics, geometry)
+                    for c2 in dict.fromkeys(c for c, _ in items):
+                        if c2.pending != 0:
+                            continue
+                        _finish(c2, target, formats, method, time.perf_counter() - started[c2.job.clip], npz_fps,
+                                physics, geometry, npz_for)  # fmt: skip
                         frames_done += c2.feats.shape[0]
                         pairs_done += 1
                         if progress is not None:

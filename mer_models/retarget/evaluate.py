@@ -63,6 +63,7 @@ class EvalOptions:
         artifacts: also the artifact metrics of every window (:mod:`mer_models.retarget.artifacts`).
         physics: the optimiser's physical terms (``optimize`` and ``refine``;
             :class:`~mer_models.solver.physics.PhysicsConfig`), None: without.
+        bvh: how BVH files are read (source ``bvh``; :class:`~mer_data.motion.sources.BvhOptions`).
     """
 
     split: str = "paper"
@@ -82,6 +83,7 @@ class EvalOptions:
     bf16: bool = False
     artifacts: bool = True
     physics: object = None
+    bvh: object = None
 
 
 def _clip_files(folder: Path) -> dict[str, Path]:
@@ -102,25 +104,35 @@ def _joints(skel) -> dict[str, int]:
 
 
 def collect_windows(input_dir: str | Path, robot: str | Robot, opts: EvalOptions) -> dict[str, list[dict]]:
-    """domain → windows ``{clip, start, reference (T, J, 9)}`` of the source robot."""
+    """domain → windows ``{clip, start, reference (T, J, 9), skeleton}`` of the source: a robot
+    (``DIR/<robot>/*.csv``) or, for ``"bvh"``, the humans of ``DIR/bvh/*.bvh`` (each clip its own
+    skeleton, :func:`mer_data.motion.sources.read_source`)."""
     from mer_data.motion.lafan1 import read_lafan1_csv
+    from mer_data.motion.sources import BVH_SOURCE, bvh_files, read_source
     from mer_data.motion.splits import EVAL, TRAIN, resolve_split
     from mer_data.motion.windows import make_windows, window_features, window_starts
 
-    robot = as_robot(robot)
-    source = robot.name
     root = Path(input_dir)
-    folder = _robot_folder(root, source)
-    if folder is None:
-        raise MerError(f"no folder {source}/ in {root}", path=root, fix=f"point --input at a folder holding {source}/*.csv")
-    files = _clip_files(folder)
-    if not files:
-        raise MerError(f"no .csv or .csv.gz motions in {folder}", path=folder)
+    human = isinstance(robot, str) and robot.lower() == BVH_SOURCE
+    if human:
+        source, files = BVH_SOURCE, bvh_files(root)
+    else:
+        robot = as_robot(robot)
+        source = robot.name
+        folder = _robot_folder(root, source)
+        if folder is None:
+            raise MerError(f"no folder {source}/ in {root}", path=root, fix=f"point --input at a folder holding {source}/*.csv")
+        files = _clip_files(folder)
+        if not files:
+            raise MerError(f"no .csv or .csv.gz motions in {folder}", path=folder)
     split = resolve_split(opts.split, {source: list(files)})[source]
-    skel = robot.skeleton
-    motions, chosen = {}, {TRAIN: [], EVAL: []}
+    motions, skels, chosen = {}, {}, {TRAIN: [], EVAL: []}
     for clip, path in files.items():
-        motion = read_lafan1_csv(path, robot)
+        if human:
+            src = read_source(path, BVH_SOURCE, bvh=opts.bvh)
+            motion, skels[clip] = src.motion, src.skeleton
+        else:
+            motion, skels[clip] = read_lafan1_csv(path, robot), robot.skeleton
         starts = window_starts(motion.num_frames, opts.window, opts.stride)
         if len(starts) == 0:
             log.warning("%s: %d frames, shorter than a window; skipped", path, motion.num_frames)
@@ -136,9 +148,9 @@ def collect_windows(input_dir: str | Path, robot: str | Robot, opts: EvalOptions
         windows = []
         for clip in dict.fromkeys(c for c, _ in w):  # clips in order; features only for chosen windows
             starts = np.array([s for c, s in w if c == clip], np.int64)
-            wb = make_windows(motions[clip], skel, starts, opts.window)
+            wb = make_windows(motions[clip], skels[clip], starts, opts.window)
             feats = window_features(wb.pos, wb.q, wb.base_rotvec, motions[clip].fps)
-            windows += [{"clip": clip, "start": int(s), "reference": feats[k]} for k, s in enumerate(starts)]
+            windows += [{"clip": clip, "start": int(s), "reference": feats[k], "skeleton": skels[clip]} for k, s in enumerate(starts)]
         out[dom] = windows
     return out
 
@@ -174,12 +186,24 @@ def _target_windows(input_dir: Path, target: Robot, windows: list[dict], opts: E
 WINDOW_FPS = 30.0  # the windows' frame rate (LAFAN1's, the model's)
 
 
-def _window_artifacts(motion: dict, batch: dict, tgt, ref, geometry, windows: list[dict]) -> dict[str, np.ndarray]:
+def _batches(windows: list[dict], size: int) -> list[tuple[int, int]]:
+    """[a, b) ranges of at most ``size`` consecutive windows whose sources share one node layout."""
+    out, a = [], 0
+    while a < len(windows):
+        b = a + 1
+        while b < len(windows) and b - a < size and windows[b]["skeleton"].node_names == windows[a]["skeleton"].node_names:
+            b += 1
+        out.append((a, b))
+        a = b
+    return out
+
+
+def _window_artifacts(motion: dict, batch: dict, tgt, geometry, windows: list[dict]) -> dict[str, np.ndarray]:
     """The artifact metrics (:mod:`.artifacts`) of every window of a batch: key → (B,)."""
     out: dict[str, list[float]] = {k: [] for k in ARTIFACT_KEYS}
     q, bp, br = (motion[k].detach().double().cpu().numpy() for k in ("q", "base_pos", "base_rot"))
     for b, x in enumerate(windows):
-        a = motion_artifacts(q[b], bp[b], br[b], WINDOW_FPS, tgt, geometry, x["reference"], ref)
+        a = motion_artifacts(q[b], bp[b], br[b], WINDOW_FPS, tgt, geometry, x["reference"], x["skeleton"])
         for k in ARTIFACT_KEYS:
             out[k].append(a[k])
     return {k: np.asarray(v, np.float64) for k, v in out.items()}
@@ -197,7 +221,10 @@ def evaluate(
 ) -> dict:
     """Evaluate; returns a JSON-ready report (see :func:`format_table`)."""
     input_dir = Path(input_dir)
-    src_robot = as_robot(source)  # every name resolved once, here
+    from mer_data.motion.sources import BVH_SOURCE
+
+    human = isinstance(source, str) and source.lower() == BVH_SOURCE
+    src_robot = BVH_SOURCE if human else as_robot(source)  # every name resolved once, here
     tgt_robots = {t: as_robot(t) for t in targets}
     methods = tuple(opts.methods)
     unknown = [m for m in methods if m not in METHODS]
@@ -207,6 +234,9 @@ def evaluate(
         raise MerError("--bf16 runs the model's network in bfloat16; the optimiser has no network",
                        fix="drop --bf16, or add --methods model (or refine)")  # fmt: skip
     if "model" in methods or "refine" in methods:
+        if human:
+            raise MerError("the model was trained on robot sources only: it has never seen a human (BVH) source",
+                           fix="evaluate --methods optimize")  # fmt: skip
         if checkpoint is None:
             raise MerError("evaluating the model needs --model", fix="pass --model PATH, or --methods optimize")
         for t in targets:
@@ -215,14 +245,11 @@ def evaluate(
     model_energy = energy or (checkpoint.run.energy if checkpoint is not None else EnergyConfig())
     opt_energy = energy or EnergyConfig()
     windows = collect_windows(input_dir, src_robot, opts)
-    ref = src_robot.skeleton
     rows = []
     for target in targets:
         tgt = tgt_robots[target].skeleton
         geometry = collision_model(tgt_robots[target]) if opts.artifacts or opts.physics is not None else None
-        phys_kw = {"physics": opts.physics, "geometry": geometry, "ref_skeleton": ref, "fps": WINDOW_FPS,
-                   "target_skeleton": tgt} if opts.physics is not None else {}
-        eta = joint_map(tgt, ref)
+        etas: dict[str, np.ndarray] = {}
         for dom in DOMAINS:
             w = windows[dom]
             if not w:
@@ -231,12 +258,18 @@ def evaluate(
             for method in methods:
                 vals: dict[str, list[np.ndarray]] = {}
                 sec = 0.0  # the retargeting's time (not the metrics')
-                for a in range(0, len(w), opts.batch_size):
+                for a, b in _batches(w, opts.batch_size):
                     t0 = time.time()
-                    samples = [
-                        TrainingSample(x["reference"], ref, tgt, eta, gt, {"clip": x["clip"], "start": x["start"]})
-                        for x, gt in zip(w[a : a + opts.batch_size], gts[a : a + opts.batch_size])
-                    ]
+                    ref = w[a]["skeleton"]  # one node layout per batch (a robot's; or humans' of one studio)
+                    phys_kw = {"physics": opts.physics, "geometry": geometry, "ref_skeleton": ref, "fps": WINDOW_FPS,
+                               "target_skeleton": tgt} if opts.physics is not None else {}  # fmt: skip
+                    samples = []
+                    for x, gt in zip(w[a:b], gts[a:b]):
+                        fp = x["skeleton"].fingerprint
+                        if fp not in etas:
+                            etas[fp] = joint_map(tgt, x["skeleton"])
+                        samples.append(TrainingSample(x["reference"], x["skeleton"], tgt, etas[fp], gt,
+                                                      {"clip": x["clip"], "start": x["start"]}))  # fmt: skip
                     batch = collate(samples, scaling=opts.scaling)
                     if method in ("model", "refine"):
                         run = checkpoint.run
@@ -253,7 +286,7 @@ def evaluate(
                     for k, v in window_metrics(motion, batch, keypoints={"base": 0, **tgt.keypoints}, joints=_joints(tgt)).items():
                         vals.setdefault(k, []).append(v)
                     if geometry is not None and opts.artifacts:
-                        for k, v in _window_artifacts(motion, batch, tgt, ref, geometry, w[a : a + opts.batch_size]).items():
+                        for k, v in _window_artifacts(motion, batch, tgt, geometry, w[a:b]).items():
                             vals.setdefault(k, []).append(v)
                 summary = summarize({k: np.concatenate(v) for k, v in vals.items()})
                 row = {"robot": target, "domain": dom, "method": method, "windows": len(w), "seconds": round(sec, 2),
@@ -266,7 +299,8 @@ def evaluate(
         "targets": list(targets),
         "model": str(checkpoint.path) if checkpoint is not None else None,
         "options": {**opts.__dict__, "methods": list(methods),
-                    "physics": None if opts.physics is None else dataclasses.asdict(opts.physics)},  # fmt: skip
+                    "physics": None if opts.physics is None else dataclasses.asdict(opts.physics),
+                    "bvh": None if opts.bvh is None else dataclasses.asdict(opts.bvh)},  # fmt: skip
         "rows": rows,
     }
 

@@ -48,6 +48,7 @@ from mer_models.batch import BatchGraph, batch_fk
 from mer_models.config import EnergyConfig
 
 from .energy import keypoint_goals, orientation_pairs
+from .progress import report
 from .tridiagonal import block_tridiagonal_solve
 
 __all__ = ["ancestors", "gauss_newton_ik", "coupled_lm_ik", "DEFAULT_SMOOTH", "DEFAULT_TOL"]
@@ -261,6 +262,7 @@ def gauss_newton_ik(
     active = torch.ones(B, dtype=torch.bool, device=P.dev)  # samples still iterating (each stops on its own)
     done = 0
     for it in range(iters):
+        report(it, iters)
         qbar = _neighbour_mean(qd)
         cost = cost_fit + prior(qd, qbar)
         h, g = P.linearise(pos, rot, kp, ocols)
@@ -374,6 +376,7 @@ def coupled_lm_ik(
     active = torch.ones(B, dtype=torch.bool, device=P.dev)
     done = 0
     for it in range(iters):
+        report(it, iters)
         h, g = P.linearise(pos, rot, kp, ocols)
         h = h + torch.diag_embed(prior_h)
         g = g + prior_grad(qd)

@@ -51,6 +51,7 @@ from mer_models.config import EnergyConfig
 from .energy import energy_terms
 from .ik import DEFAULT_SMOOTH, DEFAULT_TOL, coupled_lm_ik, gauss_newton_ik
 from .limits import limit_clip, limit_logit
+from .progress import solver_stage
 
 log = logging.getLogger(__name__)
 
@@ -170,20 +171,22 @@ def optimize_motion(
                 idx = torch.unique(torch.cat([torch.arange(0, T, stride), torch.tensor([T - 1])])).to(goal.device)
                 sub = {"goal_rot": None if goal_rot is None else goal_rot[:, idx], "rot_mask": rot_mask}
                 coarse = physics.frames(idx, stride) if physics is not None and physics.cfg.coarse else None
-                qk, pk, rk = gauss_newton_ik(cfg, graph, eta, goal[:, idx], q0[:, idx], p0[:, idx], r0[:, idx], iters=gn_iters,
-                                             smooth=smooth / stride**2, tol=tol, physics=coarse, **sub)  # fmt: skip
+                with solver_stage("key frames"):
+                    qk, pk, rk = gauss_newton_ik(cfg, graph, eta, goal[:, idx], q0[:, idx], p0[:, idx], r0[:, idx], iters=gn_iters,
+                                                 smooth=smooth / stride**2, tol=tol, physics=coarse, **sub)  # fmt: skip
                 warm = _interpolate({"q": qk, "base_pos": pk, "base_rot": rk}, idx, T)
                 q0, p0, r0 = warm["q"], warm["base_pos"], warm["base_rot"]
                 ik_iters = min(gn_iters, FINE_ITERS[fine] if refine_iters is None else refine_iters)
                 if physics is not None and physics.cfg.fine_iters:
                     ik_iters = max(ik_iters, physics.cfg.fine_iters)
                 whole = fine == "coupled" and smooth > 0
-            if whole:
-                q0, p0, r0 = coupled_lm_ik(cfg, graph, eta, goal, q0, p0, r0, iters=ik_iters, smooth=smooth, tol=tol,
-                                           stats=ik_stats, physics=physics, **gkw)  # fmt: skip
-            else:
-                q0, p0, r0 = gauss_newton_ik(cfg, graph, eta, goal, q0, p0, r0, iters=ik_iters, smooth=smooth, tol=tol,
-                                             stats=ik_stats, physics=physics, **gkw)  # fmt: skip
+            with solver_stage("all frames"):
+                if whole:
+                    q0, p0, r0 = coupled_lm_ik(cfg, graph, eta, goal, q0, p0, r0, iters=ik_iters, smooth=smooth, tol=tol,
+                                               stats=ik_stats, physics=physics, **gkw)  # fmt: skip
+                else:
+                    q0, p0, r0 = gauss_newton_ik(cfg, graph, eta, goal, q0, p0, r0, iters=ik_iters, smooth=smooth, tol=tol,
+                                                 stats=ik_stats, physics=physics, **gkw)  # fmt: skip
             if stats is not None:
                 stats["gn_iterations"] = ik_stats.get("iterations", 0)
             if repair is not None and repair.repairs and smooth > 0:  # the self term, on the pairs the solve left interpenetrating
@@ -192,8 +195,9 @@ def optimize_motion(
                 if fix is not None:  # only the samples with a pair interpenetrating, each on its own
                     rows, terms = fix
                     sub = {k: None if v is None else v[rows] for k, v in gkw.items()}
-                    qr, pr, rr = coupled_lm_ik(cfg, graph.select(rows), eta[rows], goal[rows], q0[rows], p0[rows], r0[rows],
-                                               iters=repair.cfg.self_repair_iters, smooth=smooth, tol=tol, physics=terms, **sub)  # fmt: skip
+                    with solver_stage("self-contact repair"):
+                        qr, pr, rr = coupled_lm_ik(cfg, graph.select(rows), eta[rows], goal[rows], q0[rows], p0[rows], r0[rows],
+                                                   iters=repair.cfg.self_repair_iters, smooth=smooth, tol=tol, physics=terms, **sub)  # fmt: skip
                     q0, p0, r0 = q0.clone(), p0.clone(), r0.clone()
                     q0[rows], p0[rows], r0[rows] = qr, pr, rr
     if iters > 0:

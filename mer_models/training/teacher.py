@@ -21,6 +21,7 @@ import dataclasses
 import json
 import logging
 import os
+import stat
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,7 +36,8 @@ from mer_data.kinematics.rotations import matrix_to_axis_angle
 from mer_data.kinematics.scaling import SCALING_VERSION
 from mer_data.motion.samples import collate
 from mer_data.shards.dataset import ShardDataset
-from mer_data.shards.teacher import TEACHER_FORMAT, TEACHER_VERSION, teacher_path
+from mer_data.shards.h5safe import attr
+from mer_data.shards.teacher import TEACHER_FORMAT, TEACHER_VERSION, TeacherFile, teacher_path, teacher_schema
 from mer_models.config import EnergyConfig
 from mer_models.retarget.clip import MODEL_FPS, geometry_of
 from mer_models.retarget.inference import optimize_batch
@@ -87,8 +89,36 @@ class SolverConfig:
         return json.dumps(d, sort_keys=True)
 
 
+def _plain_file(path: Path) -> bool:
+    """Whether ``path`` exists as a plain file mer may write: a symbolic link, anything but a regular
+    file, or a file with other hard links is refused (writing it would write somewhere else)."""
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return False
+    if stat.S_ISLNK(st.st_mode) or not stat.S_ISREG(st.st_mode) or st.st_nlink != 1:
+        kind = "a symbolic link" if stat.S_ISLNK(st.st_mode) else "not a regular file" if not stat.S_ISREG(st.st_mode) \
+            else f"a file with {st.st_nlink} hard links"  # fmt: skip
+        raise MerError(f"is {kind}; mer never writes through it (that would write outside the teacher folder)",
+                       path=path, fix="delete it (it is not a file mer wrote) and run again")  # fmt: skip
+    return True
+
+
+def _same_file(f: h5py.File, path: Path) -> None:
+    """The open file is the one checked at ``path`` (not swapped for a link meanwhile)."""
+    st, fst = os.lstat(path), os.fstat(f.id.get_vfd_handle())
+    if (st.st_dev, st.st_ino) != (fst.st_dev, fst.st_ino):
+        f.close()
+        raise MerError("was replaced while being opened", path=path, fix="make sure no other program writes there")
+
+
 def _create(path: Path, meta, S: int, J: int, solver: SolverConfig) -> h5py.File:
-    f = h5py.File(path, "w")
+    if _plain_file(path):
+        path.unlink()
+    try:
+        f = h5py.File(path, "x")  # exclusive: fails on anything (a link included) planted under the name meanwhile
+    except (FileExistsError, OSError) as exc:
+        raise MerError(f"cannot create the teacher file ({exc})", path=path, fix="check the folder and free space") from None
     R, T = meta.num_rows, meta.window
     chunk = (1, S, T)
     f.create_dataset("q", (R, S, T, J), np.float32, chunks=chunk + (J,), fillvalue=0)
@@ -106,28 +136,34 @@ def _create(path: Path, meta, S: int, J: int, solver: SolverConfig) -> h5py.File
 def _open_partial(path: Path, meta, S: int, J: int, solver: SolverConfig) -> h5py.File:
     """The partial file to continue, or a new one (a partial of another configuration, or one a
     kill left unreadable, is started over)."""
-    if path.exists():
+    if _plain_file(path):
         try:
             f = h5py.File(path, "r+")
+            _same_file(f, path)
             a = f.attrs
-            if (a.get("shard_build_id"), a.get("solver"), tuple(f["q"].shape)) == (meta.build_id, solver.to_json(), (meta.num_rows, S, meta.window, J)):
+            shapes = {n: tuple(f[n].shape) if n in f and isinstance(f.get(n, getlink=True), h5py.HardLink) else None
+                      for n in ("q", "base_pos", "base_rotvec", "energy", "solved")}  # fmt: skip
+            want = {n: shape for n, (_, shape) in teacher_schema(meta).items()}
+            if (a.get("shard_build_id"), a.get("solver"), shapes) == (meta.build_id, solver.to_json(), want):
                 log.info("resuming %s (%d of %d samples solved)", path.name, int(f["solved"][()].sum()), meta.num_rows * S)
                 return f
             f.close()
             log.info("starting %s over: it was begun with another configuration or shard build", path.name)
-        except (OSError, KeyError) as exc:
+        except (OSError, KeyError, ValueError, TypeError) as exc:
             log.warning("starting %s over: it cannot be read (%s)", path.name, exc)
     return _create(path, meta, S, J, solver)
 
 
 def _check_complete(path: Path, meta, solver: SolverConfig, force: bool) -> bool:
     """True when ``path`` already holds this solve; an incompatible file is refused unless ``force``."""
-    if not path.exists():
+    if not os.path.lexists(path):
         return False
     try:
-        with h5py.File(path, "r") as f:
-            same = f.attrs.get("shard_build_id") == meta.build_id and f.attrs.get("solver") == solver.to_json()
-    except OSError:
+        tf = TeacherFile(path, meta)
+        same = tf.solver == json.loads(solver.to_json()) and bool(tf.solved.all())
+        tf.close()
+    except ShardFormatError as exc:
+        log.info("%s cannot be used (%s)", path, exc.message)
         same = False
     if same:
         return True
@@ -178,9 +214,15 @@ def solve_shards(
         S = meta.samples_per_row
         n = meta.num_rows * S
         if _check_complete(final, meta, solver, force):
-            with h5py.File(final, "r") as f:
-                rec = {"shard": str(shard), "teacher": str(final), "samples": n, "frames": int(f.attrs["frames"]),
-                       "seconds": float(f.attrs["seconds"]), "energy_mean": float(np.nanmean(f["energy"][()])), "status": "up to date"}  # fmt: skip
+            tf = TeacherFile(final, meta)
+            try:
+                frames, seconds = attr(tf._f(), "frames", default=0), attr(tf._f(), "seconds", default=0.0)
+                if not (isinstance(frames, (int, float)) and isinstance(seconds, (int, float))):
+                    raise ShardFormatError("attributes 'frames' and 'seconds' are not numbers", path=final)
+                rec = {"shard": str(shard), "teacher": str(final), "samples": n, "frames": int(frames),
+                       "seconds": float(seconds), "energy_mean": float(np.mean(tf.energy)), "status": "up to date"}  # fmt: skip
+            finally:
+                tf.close()
             rec["frames_per_s"] = rec["frames"] / max(rec["seconds"], 1e-9)
             records.append(rec)
             done_all += n
@@ -273,7 +315,9 @@ def _solve_file(ds: ShardDataset, fi: int, final: Path, solver: SolverConfig, de
         f.attrs["shard_file"] = ds.paths[fi].name
     finally:
         f.close()
-    os.replace(partial, final)
+    if os.path.islink(final) or (os.path.lexists(final) and not os.path.isfile(final)):
+        raise MerError("is not a regular file; mer does not replace it", path=final, fix="delete it and run again")
+    os.replace(partial, final)  # replaces the name itself, never what a link there points to
     rec = {"shard": str(ds.paths[fi]), "teacher": str(final), "samples": meta.num_rows * S, "frames": frames,
            "seconds": round(seconds, 3), "frames_per_s": frames / max(seconds, 1e-9),
            "energy_mean": float(np.mean(energy)), "status": "solved"}  # fmt: skip

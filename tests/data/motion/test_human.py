@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from bvh_factory import LAFAN_NAMES, Figure, canonical_fk, human_definition, write_bvh
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from test_bvh import LAFAN_NAMES, Figure, canonical_fk, human_definition, write_bvh
 
 from mer_data.base.errors import BVHError
 from mer_data.kinematics.fk import fk_skeleton, skeleton_tensors
@@ -137,7 +137,7 @@ def test_a_lafan1_style_human_becomes_a_skeleton():
     assert skel.body_parts == DEFAULT_BODY_PARTS and skel.keypoint_nodes() == skel.keypoints
     at = bvh_nodes(skel)
     assert {k: skel.node_names[v] for k, v in skel.keypoints.items()} == {
-        k: f"{j}:Zrotation" for k, j in _expected(LAFAN_NAMES).items()
+        k: f"{j}:Yrotation" for k, j in _expected(LAFAN_NAMES).items()
     }
     assert all(at[j] == skel.keypoints[k] for k, j in _expected(LAFAN_NAMES).items())
     # the zero pose is the T-pose: standing on the feet, arms out, left at +y, the toes forward (+x)
@@ -286,7 +286,7 @@ def test_a_missing_key_point_names_it_and_the_joints():
     assert "no joint found for key point 'left_hand' (no left joint named like wrist/hand)" in e.message
     assert e.element == "key point left_hand" and "keypoints={'left_hand': JOINT}" in e.fix and "LeftPaw" in e.fix
     skel = human_skeleton(bvh, keypoints={"left_hand": "LeftPaw", "right_hand": "RightPaw"})
-    assert skel.node_names[skel.keypoints["right_hand"]] == "RightPaw:Zrotation"
+    assert skel.node_names[skel.keypoints["right_hand"]] == "RightPaw:Yrotation"
 
 
 def test_a_key_point_at_or_above_the_base_is_refused():

@@ -170,13 +170,18 @@ def test_demo_refuses_an_unknown_show_robot_before_doing_anything(capsys, tmp_pa
     assert out == "" and not (tmp_path / "d").exists()
 
 
-def test_dry_run_prints_the_show_table_and_writes_nothing(shared_wild_robots, capsys):
+def test_dry_run_prints_the_summary_then_the_show_table_with_verbose_and_writes_nothing(shared_wild_robots, capsys):
     urdf = str(shared_wild_robots / "unitree_h1_hands" / "unitree_h1_hands.urdf")
-    code, out, err = run(capsys, "robots", "register", "h1hands", "--urdf", urdf, "--dry-run")
+    code, short, err = run(capsys, "robots", "register", "h1hands", "--urdf", urdf, "--dry-run")
+    assert code == 0, err
+    assert short.startswith("dry run, nothing written") and "--verbose adds the node table" in short
+    assert not [l for l in short.splitlines() if l[:6].strip().isdigit()]  # no node table by default
+    code, out, err = run(capsys, "robots", "register", "h1hands", "--urdf", urdf, "--dry-run", "--verbose")
     assert code == 0, err
     assert not robots_dir().exists() or not list(robots_dir().iterdir())
     head = [l for l in out.splitlines() if l.lstrip().startswith("#")]
-    assert len(head) == 1 and "zero-pose pos [m]" in head[0] and "dry run, nothing written" in out
+    assert len(head) == 1 and "zero-pose pos [m]" in head[0] and out.startswith("dry run, nothing written")
+    assert out.index("key points:") < out.index(head[0])  # the summary first, the table after it
     rows = {l.split()[1]: l for l in out.splitlines() if l[:6].strip().isdigit()}
     assert rows["left_hand"].split()[-1] == "left_hand" and "site" in rows["left_hand"]
     assert "L_thumb_distal_joint" not in rows  # fingers locked, not nodes

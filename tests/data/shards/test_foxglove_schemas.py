@@ -66,9 +66,11 @@ def test_every_message_of_a_retarget_mcap_validates(tmp_path, capsys):
     code = main(["retarget", str(src), "--source", "g1", "--target", "h1", "--method", "optimize", "--mcap", str(out)])
     assert code == 0, capsys.readouterr().err
     assert {t: n for t, (n, _) in _schemas(out).items()} == {
-        "/tf": "foxglove.FrameTransforms", "/skeleton": "foxglove.SceneUpdate", "/reference": "foxglove.SceneUpdate"}  # fmt: skip
-    assert {d for _, d in _schemas(out).values()} == {FRAME_TRANSFORMS_SCHEMA, SCENE_UPDATE_SCHEMA}
-    assert check_mcap(out) == {"/tf": 20, "/skeleton": 1, "/reference": 20}
+        "/tf": "foxglove.FrameTransforms", "/skeleton": "foxglove.SceneUpdate", "/reference": "foxglove.SceneUpdate",
+        "/robot": "foxglove.SceneUpdate", "/robot_description": "std_msgs/String"}  # fmt: skip
+    foxglove = {d for n, d in _schemas(out).values() if n.startswith("foxglove.")}
+    assert foxglove == {FRAME_TRANSFORMS_SCHEMA, SCENE_UPDATE_SCHEMA}
+    assert check_mcap(out) == {"/tf": 20, "/skeleton": 1, "/reference": 20, "/robot": 1, "/robot_description": 1}
 
 
 def test_every_message_of_a_shard_mcap_validates(tmp_path, capsys):

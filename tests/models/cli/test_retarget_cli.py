@@ -39,7 +39,7 @@ def test_retarget_writes_every_output_within_limits(tmp_path, capsys, micro_chec
     src = synthetic_csv(tmp_path / "walk.csv")
     out = tmp_path / "out"
     code, o, err = run(capsys, "retarget", src, "--source", "g1", "--target", "h1", "--model", micro_checkpoint,
-                       "-o", out / "h1.csv", "--npz", out / "h1.npz", "--mcap", out / "h1.mcap", "--plot", out / "h1.png", "--steps", "3")  # fmt: skip
+                       "-o", out / "h1.csv", "--npz", out / "h1.npz", "--npz-for", "mjlab", "--mcap", out / "h1.mcap", "--plot", out / "h1.png", "--steps", "3")  # fmt: skip
     assert code == 0, err
     for ext in ("csv", "npz", "mcap", "png"):
         assert (out / f"h1.{ext}").stat().st_size > 0

@@ -65,10 +65,32 @@ def test_errors_exit_non_zero_with_what_to_do(capsys):
     assert "not yet published" in err and "mer finetune --base mer-paper --robot talos" in err
 
 
-def test_info_shows_the_card(capsys):
+def test_info_is_short_by_default_and_whole_with_verbose(capsys):
     assert main(["zoo", "info", "mer-paper"]) == 0
     out = capsys.readouterr().out
-    assert "unpublished" in out and "cc-by-nc-nd-4.0" in out and "mer train --config paper" in out
+    assert "unpublished" in out and "cc-by-nc-nd-4.0" in out and "not published yet" in out and "--verbose" in out
+    assert "mer train --config paper" not in out and "@ not published" not in out
+    assert main(["zoo", "info", "mer-paper", "--verbose"]) == 0
+    out = capsys.readouterr().out
+    assert "mer train --config paper" in out and "licence:" in out and "split:" in out
+    assert main(["zoo", "info", "mer-base"]) == 0
+    short = capsys.readouterr().out
+    assert len(short) < 900 and len(short.splitlines()) <= 9, short
+    assert "accuracy: E_g-mpbpe" in short and "model alone" in short
+    assert "history" not in short and "function-preservingly" not in short and "repo:" not in short
+    assert main(["zoo", "info", "mer-base", "--verbose"]) == 0
+    full = capsys.readouterr().out
+    assert "function-preservingly" in full and "sha256" in full and "repo:" not in full  # bundled: no Hub repo line
+
+
+def test_model_typos_get_a_suggestion(capsys):
+    assert main(["zoo", "download", "mer-bse"]) == 1
+    assert "did you mean 'mer-base'?" in capsys.readouterr().err
+    assert main(["zoo", "info", "mer-papr"]) == 1
+    assert "did you mean 'mer-paper'?" in capsys.readouterr().err
+
+
+def test_info_json_is_the_card(capsys):
     assert main(["zoo", "info", "mer-paper-talos", "--json"]) == 0
     meta = json.loads(capsys.readouterr().out)
     assert meta["base_model"] == "mer-paper" and meta["where"] == "unpublished" and meta["license"] == "cc-by-nc-nd-4.0"

@@ -64,7 +64,7 @@ def test_a_synthetic_g1_npz_replays_in_mujoco(tmp_path):
     m = synthetic_motion(s, 45, seed=3)
     motion = TargetMotion(s, 30.0, m["q"], m["base_pos"], quat_to_matrix(torch.from_numpy(m["base_quat"])).numpy())
     assert np.ptp(motion.q, axis=0).max() > 0.3  # the joints move
-    pos_err, rot_err = replay_errors(write_npz(tmp_path / "g1.npz", motion))
+    pos_err, rot_err = replay_errors(write_npz(tmp_path / "g1.npz", motion, tracker="mjlab"))
     assert pos_err < 1e-5 and rot_err < 1e-4, (pos_err, rot_err)
 
 
@@ -73,7 +73,7 @@ def test_the_replay_catches_a_wrong_joint_order(tmp_path):
     s = get_skeleton("g1")
     m = synthetic_motion(s, 10, seed=1)
     motion = TargetMotion(s, 30.0, m["q"], m["base_pos"], quat_to_matrix(torch.from_numpy(m["base_quat"])).numpy())
-    z = dict(np.load(write_npz(tmp_path / "g1.npz", motion, fps=None)))
+    z = dict(np.load(write_npz(tmp_path / "g1.npz", motion, tracker="mjlab", fps=None)))
     z["joint_pos"] = z["joint_pos"][:, [1, 0, *range(2, z["joint_pos"].shape[1])]]
     np.savez(tmp_path / "bad.npz", **z)
     assert replay_errors(tmp_path / "bad.npz")[0] > 1e-3
@@ -86,5 +86,5 @@ def test_a_real_lafan1_g1_clip_replays_in_mujoco(lafan1_dir, tmp_path):
     s = get_skeleton("g1")
     mo = read_lafan1_csv(tmp_path / "walk.csv", "g1")
     motion = TargetMotion(s, 30.0, mo.node_angles(s), mo.base_pos, quat_to_matrix(torch.from_numpy(mo.base_quat)).numpy())
-    pos_err, rot_err = replay_errors(write_npz(tmp_path / "g1.npz", motion))
+    pos_err, rot_err = replay_errors(write_npz(tmp_path / "g1.npz", motion, tracker="mjlab"))
     assert pos_err < 1e-5 and rot_err < 1e-4, (pos_err, rot_err)

@@ -53,7 +53,7 @@ def _leftovers(folder) -> list[str]:
 
 def test_a_gif_has_one_frame_per_motion_frame_at_the_size_asked(tmp_path):
     m = _motion(20)
-    out = write_video(tmp_path / "v.gif", m, size=SIZE, **_reference_of(m))
+    out = write_video(tmp_path / "v.gif", m, size=SIZE, fps=30.0, **_reference_of(m))
     frames, durations = _gif_frames(out)
     assert len(frames) == 20 and frames[0].shape == (SIZE[1], SIZE[0], 3)
     assert sum(durations) == 670  # 20 frames at 30 Hz = 0.667 s, in GIF's centiseconds
@@ -129,7 +129,7 @@ def test_a_failure_while_rendering_leaves_nothing_half_written(tmp_path, monkeyp
 
     monkeypatch.setattr(video_mod._Renderer, "frame", frame)
     with pytest.raises(RuntimeError, match="rendering broke"):
-        write_video(path, m, size=SIZE, **_reference_of(m))
+        write_video(path, m, size=SIZE, fps=30.0, **_reference_of(m))
     assert path.read_bytes() == b"the earlier video" and not _leftovers(tmp_path)
     bad = TargetMotion(m.skeleton, 30.0, np.where(np.arange(10)[:, None] == 3, np.nan, m.q), m.base_pos, m.base_rot)
     with pytest.raises(OutputError):
@@ -149,3 +149,36 @@ def test_mer_retarget_writes_the_video_and_refuses_a_bad_ending_before_any_work(
     assert f"wrote video: {tmp_path / 'h1.gif'}" in out.out
     with Image.open(tmp_path / "h1.gif") as im:
         assert im.n_frames == 15 and im.size == (800, 400)
+
+
+def test_a_gif_defaults_to_15_hz_and_the_first_10_s_and_a_range_picks_a_part(tmp_path, caplog):
+    m = _motion(12 * 30)  # 12 s
+    with caplog.at_level("WARNING"):
+        out = write_video(tmp_path / "d.gif", m, size=SIZE, **_reference_of(m))
+    assert "showing the first 10 s of" in caplog.text
+    frames, durations = _gif_frames(out)
+    assert len(frames) == 151 and sum(durations) == 10_070  # 0..10 s at 15 Hz; the clock kept
+    part = write_video(tmp_path / "p.gif", m, size=SIZE, fps=30.0, time_range=(11.0, None), **_reference_of(m))
+    assert len(_gif_frames(part)[0]) == 30  # 11.0 .. 11.967 s
+    with pytest.raises(MerError, match="holds no frame"):
+        write_video(tmp_path / "n.gif", m, size=SIZE, time_range=(20.0, 30.0), **_reference_of(m))
+    assert not (tmp_path / "n.gif").exists()
+
+
+@pytest.mark.parametrize("text, want", [("0:10", (0.0, 10.0)), (":5", (0.0, 5.0)), ("30:", (30.0, None)), ("1.5:2", (1.5, 2.0))])
+def test_time_ranges_parse(text, want):
+    assert video_mod.parse_time_range(text) == want
+
+
+@pytest.mark.parametrize("text", ["5", "10:5", "-1:3", "a:b", "3:3", "nan:4"])
+def test_bad_time_ranges_are_refused(text):
+    with pytest.raises(MerError, match="START:END"):
+        video_mod.parse_time_range(text)
+
+
+def test_the_camera_follows_the_robot(tmp_path):
+    """A robot walking 3 m stays where it was in the picture (its colour in the same columns)."""
+    m = _motion(30, drift=3.0)
+    frames, _ = _gif_frames(write_video(tmp_path / "f.gif", m, size=SIZE, fps=30.0, **_reference_of(m)))
+    first, last = _ink(frames[0][:, SIZE[0] // 2 :]), _ink(frames[-1][:, SIZE[0] // 2 :])
+    assert abs(float(np.median(first)) - float(np.median(last))) < 0.1 * SIZE[0] / 2

@@ -1,4 +1,4 @@
-"""Output files: LAFAN1-style CSV, BeyondMimic npz, Foxglove MCAP, PNG."""
+"""Output files: LAFAN1-style CSV, a tracker's npz, Foxglove MCAP, PNG."""
 
 from __future__ import annotations
 
@@ -45,9 +45,9 @@ def test_csv_of_a_robot_without_a_layout_uses_node_order(tmp_path):
     np.testing.assert_allclose(np.linalg.norm(quat_xyzw, axis=1), 1.0, atol=1e-5)
 
 
-def test_npz_has_beyondmimic_keys_and_consistent_bodies(tmp_path):
+def test_npz_has_the_converters_keys_and_consistent_bodies(tmp_path):
     m = _motion("h1")
-    z = np.load(write_npz(tmp_path / "m.npz", m, fps=None))
+    z = np.load(write_npz(tmp_path / "m.npz", m, tracker="mjlab", fps=None))
     keys = {"fps", "joint_pos", "joint_vel", "body_pos_w", "body_quat_w", "body_lin_vel_w", "body_ang_vel_w", "joint_names", "body_names"}
     assert keys <= set(z.files)
     F, D = z["joint_pos"].shape
@@ -56,7 +56,7 @@ def test_npz_has_beyondmimic_keys_and_consistent_bodies(tmp_path):
     assert z["body_pos_w"].shape == (F, L, 3) and z["body_quat_w"].shape == (F, L, 4)
     np.testing.assert_allclose(np.linalg.norm(z["body_quat_w"], axis=-1), 1.0, atol=1e-5)
     np.testing.assert_allclose(z["body_pos_w"][:, 0], m.base_pos, atol=1e-5)  # body 0 is the base link
-    assert float(z["fps"]) == 30.0
+    assert z["fps"].shape == (1,) and z["fps"].dtype == np.int64 and int(z["fps"][0]) == 30  # as csv_to_npz writes it
 
 
 def test_npz_angular_velocity_of_a_steady_spin(tmp_path):
@@ -64,7 +64,7 @@ def test_npz_angular_velocity_of_a_steady_spin(tmp_path):
     F, rate = 30, 1.5  # rad/s about z
     rot = rot_z(torch.arange(F, dtype=torch.float64) * rate / 30.0).numpy()
     m = TargetMotion(s, 30.0, np.zeros((F, s.num_nodes)), np.zeros((F, 3)), rot)
-    z = np.load(write_npz(tmp_path / "spin.npz", m))  # at 50 Hz: the spin rate stays 1.5 rad/s
+    z = np.load(write_npz(tmp_path / "spin.npz", m, tracker="beyondmimic"))  # at 50 Hz: the spin rate stays 1.5 rad/s
     np.testing.assert_allclose(z["body_ang_vel_w"][:, :, 2], rate, atol=1e-4)
     np.testing.assert_allclose(z["body_ang_vel_w"][:, :, :2], 0.0, atol=1e-5)
 
@@ -84,9 +84,9 @@ def test_mcap_has_foxglove_channels(tmp_path):
         for schema, channel, message in reader.iter_messages():
             counts[channel.topic] = counts.get(channel.topic, 0) + 1
             json.loads(message.data)
-    assert schemas == {"foxglove.FrameTransforms", "foxglove.SceneUpdate"}
-    assert topics == {"/tf": "json", "/skeleton": "json", "/reference": "json"}
-    assert counts == {"/tf": 12, "/skeleton": 1, "/reference": 12}
+    assert schemas == {"foxglove.FrameTransforms", "foxglove.SceneUpdate", "std_msgs/String"}
+    assert topics == {"/tf": "json", "/skeleton": "json", "/reference": "json", "/robot": "json", "/robot_description": "json"}
+    assert counts == {"/tf": 12, "/skeleton": 1, "/reference": 12, "/robot": 1, "/robot_description": 1}
 
 
 def test_png_is_written(tmp_path):
@@ -101,8 +101,8 @@ def test_npz_is_written_at_the_trackers_rate_by_lerp_and_slerp(tmp_path):
     from mer_models.export.writers import resample_motion
 
     m = _motion("h1")  # 40 frames at 30 Hz: 1.3 s
-    z = np.load(write_npz(tmp_path / "m.npz", m))
-    assert float(z["fps"]) == 50.0 and z["joint_pos"].shape[0] == 66  # frames at 0, 1/50, ... 1.3 s
+    z = np.load(write_npz(tmp_path / "m.npz", m, tracker="mjlab"))
+    assert int(z["fps"][0]) == 50 and z["joint_pos"].shape[0] == 66  # frames at 0, 1/50, ... 1.3 s
     r = resample_motion(m, 50.0)
     np.testing.assert_allclose(r.q[::5], m.q[::3], atol=1e-12)  # every 0.1 s both have a frame
     np.testing.assert_allclose(r.base_rot[::5], m.base_rot[::3], atol=1e-9)

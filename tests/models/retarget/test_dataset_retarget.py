@@ -58,7 +58,7 @@ def test_shards_split_the_pairs_exactly_once(tmp_path):
 
 def test_a_dataset_retargets_once_and_resumes(dataset, tmp_path):
     out = tmp_path / "out"
-    first = retarget_dataset(str(dataset), "g1", ["h1", "tron1"], out, formats=("csv", "npz"), segment=64, context=4,
+    first = retarget_dataset(str(dataset), "g1", ["h1", "tron1"], out, formats=("csv", "npz"), npz_for="beyondmimic", segment=64, context=4,
                              frames_per_batch=300)  # fmt: skip
     assert first["jobs"] == 6 and first["done_now"] == 6 and first["done_before"] == 0
     assert first["frames"] == 2 * sum(CLIPS.values())
