@@ -43,13 +43,57 @@ def build_parser() -> argparse.ArgumentParser:
     retarget_cli.add_parser(sub)
     evaluate_cli.add_parser(sub)
     zoo_cli.add_parser(sub)
+    for parser in _parsers(p):  # `--robot` is not silently `--robots`
+        parser.allow_abbrev = False
     return p
+
+
+def _parsers(p: argparse.ArgumentParser) -> list[argparse.ArgumentParser]:
+    """``p`` and every subcommand's parser below it."""
+    out = [p]
+    for action in p._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for child in dict.fromkeys(action.choices.values()):
+                out += _parsers(child)
+    return out
+
+
+def _command_parser(p: argparse.ArgumentParser, argv: Sequence[str]) -> argparse.ArgumentParser:
+    """The deepest subcommand parser ``argv`` names (``mer shards solve`` → solve's)."""
+    for action in p._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for i, word in enumerate(argv):
+                if word in action.choices:
+                    return _command_parser(action.choices[word], argv[i + 1 :])
+    return p
+
+
+def _unknown(parser: argparse.ArgumentParser, extra: list[str]) -> None:
+    """Refuse unknown arguments with the subcommand's own usage and the nearest option names."""
+    from mer_data.base.suggest import close_matches
+
+    known = [o for a in parser._actions for o in a.option_strings]
+    hints = []
+    for word in extra:
+        if word.startswith("-"):
+            near = close_matches(word.split("=", 1)[0], known)
+            if near:
+                hints.append(f"{word}: did you mean {' or '.join(near)}?")
+    parser.error(f"unrecognized arguments: {' '.join(extra)}" + ("; " + "; ".join(hints) if hints else ""))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit status (0 ok, 1 refused input, 2 usage, 130 interrupted)."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    command = _command_parser(parser, argv)
+    known = {o for a in (*command._actions, *parser._actions) for o in a.option_strings}
+    typos = [w for w in argv if w.startswith("--") and w != "--" and w.split("=", 1)[0] not in known]
+    if typos and command is not parser:  # before argparse complains about a required option the typo meant
+        _unknown(command, typos)
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        _unknown(command, extra)
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     for noisy in ("yourdfpy", "trimesh", "urllib3", "httpx", "filelock"):

@@ -125,7 +125,7 @@ def cmd_retarget(args) -> int:
         wants_model = not human and (args.refine or args.model is not None or args.bf16 or args.steps is not None
                                      or args.guidance is not None)  # fmt: skip
         args.method = "diffusion" if wants_model else "optimize"
-        args.method_why = ("the default: the most accurate path; --method diffusion --refine 5 for the model"
+        args.method_why = ("the default, the most accurate path; --method diffusion --refine 5 for the model"
                            if args.method == "optimize" else "a model option was given")  # fmt: skip
     if not any([args.output, args.npz, args.mcap, args.plot, args.video]):
         raise MerError("nothing to write", fix="give -o OUT.csv and/or --npz/--mcap/--plot/--video")

@@ -68,3 +68,16 @@ def test_help_starts_without_torch():
             "print(sorted(m for m in ('torch', 'scipy', 'h5py', 'mujoco', 'mcap') if m in sys.modules))")  # fmt: skip
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
+
+
+def test_options_are_not_abbreviated_and_typos_get_the_subcommands_usage(capsys):
+    import pytest
+
+    for argv, want in ((["retarget", "x.csv", "--source", "g1", "--targt", "h1"], "did you mean --target or --targets?"),
+                       (["shards", "build", "--input", "d", "--robot", "g1"], "did you mean --robots?"),
+                       (["shards", "solve", "d", "--batchh", "3"], "did you mean --batch?")):  # fmt: skip
+        with pytest.raises(SystemExit) as exc:
+            main(argv)
+        err = capsys.readouterr().err
+        assert exc.value.code == 2 and want in err, err
+        assert f"usage: mer {' '.join(argv[:2] if argv[0] == 'shards' else argv[:1])}" in err  # the subcommand's own usage
