@@ -118,14 +118,15 @@ def test_retarget_by_name_and_by_default_offline(tmp_path, capsys, monkeypatch):
 
 @pytest.mark.parametrize("source, target", [("h1", "valkyrie"), ("h1_2", "tron1"), ("g1", "talos")])
 def test_retarget_with_no_model_offline_between_builtin_robots(tmp_path, capsys, monkeypatch, source, target):
-    """No --model and no --allow-unseen: the default model saw every built-in robot (tron1: a biped
+    """--method diffusion, no --model and no --allow-unseen: the default model saw every built-in robot (tron1: a biped
     with point feet). The command line reads CSVs of the robots with a LAFAN1 column layout (g1, h1,
     h1_2); the other sources are checked through the library below."""
     monkeypatch.setenv("HF_HUB_OFFLINE", "1")
     monkeypatch.setenv("HF_HUB_CACHE", str(tmp_path / "empty-cache"))
     src = synthetic_csv(tmp_path / f"{source}.csv", source, frames=40, seed=2)
     out = tmp_path / f"{target}.csv"
-    assert main(["retarget", str(src), "--source", source, "--target", target, "-o", str(out)]) == 0, capsys.readouterr().err
+    assert main(["retarget", str(src), "--source", source, "--target", target, "-o", str(out), "--method", "diffusion"]) == 0, (
+        capsys.readouterr().err)  # fmt: skip
     err = capsys.readouterr().err
     assert f"using the bundled model {zoo.DEFAULT_MODEL!r}" in err and "never trained" not in err
     a = np.loadtxt(out, delimiter=",")
