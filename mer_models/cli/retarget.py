@@ -17,8 +17,8 @@ def check_refine(args: argparse.Namespace) -> None:
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "retarget",
-        help="retarget a LAFAN1-layout CSV to another robot",
-        description="Retarget INPUT (CSV in the source robot's LAFAN1 layout) to the target robot. "
+        help="retarget a robot's LAFAN1-layout CSV, or human motion capture (BVH), to a robot",
+        description="Retarget INPUT (CSV in the source robot's LAFAN1 layout, or a .bvh of a human) to the target robot. "
         "Outputs: CSV in the target's layout (-o), a motion tracker's npz (mjlab or BeyondMimic), Foxglove MCAP, PNG film "
         "strip, GIF/MP4 video. "
         "Or a whole dataset: --input DIR|hf://REPO --targets ROBOT... --out DIR retargets every clip to every "
@@ -62,7 +62,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--video-fps", type=float, help="frame rate of the video [Hz] (default: the motion's 30; lower renders faster)")
     p.add_argument("--model", help="checkpoint folder, zoo name or ORG/NAME for --method diffusion "
                    "(default: the bundled model mer-base, trained on synthetic motion only)")
-    p.add_argument("--method", choices=["diffusion", "optimize"], help="default: diffusion for a file, optimize for a dataset")
+    p.add_argument("--method", choices=["diffusion", "optimize"],
+                   help="default: optimize (the most accurate path on a CPU); diffusion when a model option (--model, --refine, "
+                   "--steps, --guidance, --bf16) is given")
     p.add_argument("--steps", type=int, help="sampler steps (default: the model's, <= 20)")
     p.add_argument("--guidance", type=float, help="test-time energy guidance step (default: the model's)")
     p.add_argument("--seed", type=int, default=0, help="sampling seed")
