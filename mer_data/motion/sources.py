@@ -33,7 +33,7 @@ from .lafan1 import Motion, read_lafan1_csv
 from .resample import resample
 
 __all__ = ["BVH_SOURCE", "BvhOptions", "SourceMotion", "is_bvh", "is_bvh_source", "read_source", "load_bvh_keypoints",
-           "bvh_files", "SOURCE_FPS"]
+           "bvh_files", "bvh_motion", "human_source_skeleton", "SOURCE_FPS"]
 
 #: ``--source`` of human motion capture.
 BVH_SOURCE = "bvh"
@@ -157,19 +157,34 @@ def read_source(path: str | Path, source: Any, *, fps: float = SOURCE_FPS, bvh: 
     return SourceMotion(source.skeleton, motion, "csv")
 
 
-def _read_bvh(path: str | Path, opts: BvhOptions) -> SourceMotion:
-    from .bvh import read_bvh
-    from .human import human_motion, human_skeleton, standing_frame
+def human_source_skeleton(clip: Any, keypoints: Mapping[str, str] | None = None) -> Skeleton:
+    """The skeleton of the human in ``clip`` (a :class:`~mer_data.motion.bvh.BvhMotion`), named
+    :data:`BVH_SOURCE`, its zero pose the clip's most neutral standing frame."""
+    from .human import human_skeleton, standing_frame
 
-    clip = read_bvh(path, units=opts.units, up=opts.up)
-    rest = standing_frame(clip, opts.keypoints)
-    skel = human_skeleton(clip, keypoints=opts.keypoints, name=BVH_SOURCE, rest_frame=rest)
+    return human_skeleton(clip, keypoints=keypoints, name=BVH_SOURCE, rest_frame=standing_frame(clip, keypoints))
+
+
+def bvh_motion(clip: Any, skel: Skeleton) -> Motion:
+    """``clip`` as a :class:`~mer_data.motion.lafan1.Motion` of ``skel`` at the file's rate: a skeleton
+    of this clip, or of another clip of the same hierarchy (a dataset's one human: the angles are
+    measured from that skeleton's zero pose, the bones are that skeleton's). Angles are unwrapped."""
+    from .human import human_motion
+
     base_pos, base_quat, q = human_motion(clip, skel)
     rev = np.flatnonzero(skel.revolute_mask)
     joints = np.unwrap(q[:, rev], axis=0) if len(q) > 1 else q[:, rev]
-    motion = Motion(BVH_SOURCE, float(clip.fps), np.asarray(base_pos, np.float64), np.asarray(base_quat, np.float64),
-                    np.ascontiguousarray(joints, np.float64), tuple(skel.node_names[i] for i in rev))  # fmt: skip
+    return Motion(skel.name, float(clip.fps), np.asarray(base_pos, np.float64), np.asarray(base_quat, np.float64),
+                  np.ascontiguousarray(joints, np.float64), tuple(skel.node_names[i] for i in rev))  # fmt: skip
+
+
+def _read_bvh(path: str | Path, opts: BvhOptions) -> SourceMotion:
+    from .bvh import read_bvh
+
+    clip = read_bvh(path, units=opts.units, up=opts.up)
+    skel = human_source_skeleton(clip, opts.keypoints)
+    motion = bvh_motion(clip, skel)
     if motion.fps != SOURCE_FPS:
         motion = resample(motion, SOURCE_FPS)
-    notes = (*clip.notes, f"zero pose: frame {rest} (the most neutral standing frame)")
+    notes = (*clip.notes, "zero pose: the clip's most neutral standing frame")
     return SourceMotion(skel, motion, "bvh", notes)

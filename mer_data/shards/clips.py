@@ -23,6 +23,7 @@ from mer_data.base.finite import require_finite
 from mer_data.kinematics.fk import SkeletonTensors, skeleton_tensors
 from mer_data.motion.lafan1 import Motion, decompress_motion, parse_lafan1, read_motion_file
 from mer_data.motion.resample import resample
+from mer_data.motion.sources import BVH_SOURCE, bvh_motion
 from mer_data.motion.windows import make_windows, window_starts
 from mer_data.robots.registry import Robot, load_robot
 from mer_data.skeleton import KEYPOINTS, Skeleton
@@ -157,8 +158,13 @@ def _load(ctx: BuildContext, task: ClipTask, record: dict) -> tuple[Motion | Non
     if old is not None:
         return None, ClipResult(task, old.sources[0], str(piece), reused=True)
     try:
-        data = decompress_motion(raw, path)
-        motion = parse_lafan1(data, ctx.robot(task.robot), path=path, fps=cfg.fps, quat_tolerance=cfg.quat_tolerance)
+        if task.robot == BVH_SOURCE:  # human motion capture, as a motion of the dataset's one human
+            from mer_data.motion.bvh import parse_bvh_bytes
+
+            motion = bvh_motion(parse_bvh_bytes(raw, str(path)), ctx.skeleton(task.robot))
+        else:
+            data = decompress_motion(raw, path)
+            motion = parse_lafan1(data, ctx.robot(task.robot), path=path, fps=cfg.fps, quat_tolerance=cfg.quat_tolerance)
     except MerError as exc:
         record["error"] = str(exc)
         return None, ClipResult(task, record, None)

@@ -18,6 +18,7 @@ from pathlib import Path
 from mer_data import __version__
 from mer_data.base.errors import MerError, ShardBuildError
 from mer_data.motion.lafan1 import lafan1_columns
+from mer_data.motion.sources import BVH_SOURCE, bvh_files, human_source_skeleton
 from mer_data.motion.splits import resolve_split
 from mer_data.robots.registry import list_robots, load_robot
 
@@ -85,17 +86,28 @@ def plan_build(cfg: BuildConfig, out: Path, shard_index: int | None) -> Plan:
         raise ShardBuildError(
             f"shard index {shard_index} is outside 0..{cfg.num_shards - 1}", fix="--shard-index I with 0 <= I < --num-shards"
         )
-    for r in cfg.robots:  # unknown robot (or, reading files, no LAFAN1 layout): refuse before touching anything
+    robots = [r for r in cfg.robots if r != BVH_SOURCE]
+    if BVH_SOURCE in cfg.robots and (cfg.synthetic or len(robots)):
+        raise ShardBuildError("a build from BVH takes --robots bvh alone, from a folder", fix="build the robots' shards separately")
+    for r in robots:  # unknown robot (or, reading files, no LAFAN1 layout): refuse before touching anything
         load_robot(r) if cfg.synthetic else lafan1_columns(load_robot(r))
     targets = _resolve_targets(cfg.targets)
     clips: dict[str, dict[str, Path | str]]
+    human = None
     if cfg.synthetic:
         clips = dict(synthetic_clips(cfg.robots, cfg.synthetic))
-    else:
+    elif robots:
         clips = dict(discover_clips(resolve_input(cfg.input, cfg.robots), cfg.robots))
+    else:  # human motion capture: one human for the dataset, the first clip's (docs/shards.md)
+        if cfg.input.startswith("hf://"):
+            raise ShardBuildError("BVH input is read from a local folder", fix="download the files and pass --input DIR")
+        clips = {BVH_SOURCE: dict(bvh_files(cfg.input))}
+        from mer_data.motion.bvh import read_bvh
+
+        human = human_source_skeleton(read_bvh(next(iter(clips[BVH_SOURCE].values()))))
     splits = resolve_split(cfg.split, {r: list(c) for r, c in clips.items()})
     names = sorted(set(cfg.robots) | set(targets))
-    skeletons = {n: load_robot(n).skeleton.to_json() for n in names}
+    skeletons = {n: (human if n == BVH_SOURCE else load_robot(n).skeleton).to_json() for n in names}
     resolved = {
         "splits": splits,
         "targets": targets,
