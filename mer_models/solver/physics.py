@@ -19,10 +19,14 @@ the target's collision polytopes (:mod:`mer_data.robots.collision`), floor at z 
 
 With ``lock_blend`` >= 0, before the solve, the position goals of each stance foot's sole points
 are held at their stance phase's mean x, y (:meth:`PhysicsInputs.lock_goals`, blended over
-``lock_blend`` frames): the goals of a planted foot do not slide. The anchor term couples frames; it takes the phase means from the
+``lock_blend`` frames): the goals of a planted foot do not slide; and the feet's goals are kept
+the target's foot width apart (:meth:`PhysicsInputs.separate_feet`). With ``self_repair_iters`` > 0
+the self term runs only after the solve, on the samples and pairs it left interpenetrating
+(:meth:`PhysicsInputs.repair`). The anchor term couples frames; it takes the phase means from the
 previous iterate, Jacobi-style, in both solvers. Weights are relative to ``EnergyConfig.w_kp``;
-the defaults (floor and joint speed on, the rest off) and what each term measured are in
-docs/decisions.md §Physical terms of the optimiser.
+the defaults (floor, joint speed, the stance lock, feet apart and the self-penetration repair on;
+stance height, flat feet, anchors and swing off) and what each measured are in docs/decisions.md
+§Physical terms of the optimiser.
 Jacobians are analytic, the same form as the key points': a point ``p`` moving with node ``k``
 moves by ``a_j x (p - p_j)`` for every joint ``j`` at or above ``k``.
 """
