@@ -34,6 +34,16 @@ def shared_robots(shared_dir: Path) -> Path:
 
 
 @pytest.fixture(scope="session")
+def bandai(shared_dir: Path) -> list[Path]:
+    """The Bandai Namco BVH clips of ``../shared/data/bvh/bandai1`` (CC BY-NC: read, never copied)."""
+    d = shared_dir / "data" / "bvh" / "bandai1"
+    files = sorted(d.glob("*.bvh"))
+    if not files:
+        pytest.skip(f"the Bandai Namco BVH clips are absent from {d}")
+    return files
+
+
+@pytest.fixture(scope="session")
 def shared_wild_robots(shared_dir: Path) -> Path:
     """``../shared/robots-wild``: public URDFs as their makers publish them (folder/NAME.urdf)."""
     d = shared_dir / "robots-wild"

@@ -57,7 +57,7 @@ from mer_data.base.errors import MerError
 from mer_data.robots.builder import zero_pose_link_transforms
 from mer_data.robots.collision import shape_vertices
 from mer_data.robots.hulls import simplify_hull
-from mer_data.robots.shapes import CollisionFile, Shape, dump_collision, parse_collision
+from mer_data.robots.shapes import CollisionFile, Shape, dump_collision, parse_collision, primitive_shape
 from mer_data.robots.urdf import load_urdf
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -219,12 +219,9 @@ def build_robot(name: str, up: Upstream, max_vertices: int, tol: float) -> Robot
         shapes: list[Shape] = []
         for c in urdf.collisions.get(lname, ()):
             t = np.asarray(c["origin"], np.float64)
-            if c["type"] == "box":
-                shapes.append(Shape("box", t, size=tuple(c["size"])))
-            elif c["type"] == "sphere":
-                shapes.append(Shape("sphere", t, radius=c["radius"]))
-            elif c["type"] == "cylinder":
-                shapes.append(Shape("cylinder", t, radius=c["radius"], length=c["length"]))
+            prim = primitive_shape(c)
+            if prim is not None:
+                shapes.append(prim)
             else:
                 rel = resolve_mesh(c["filename"], spec, up)
                 if rel not in cache:

@@ -14,12 +14,15 @@ differences at the two ends, i.e. ``numpy.gradient(..., edge_order=2)``).
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
-from mer_data.kinematics.fk import SkeletonTensors, apply_mimic, fk_skeleton
+from mer_data.kinematics.fk import SkeletonTensors, apply_mimic, fk_skeleton, skeleton_tensors
 from mer_data.kinematics.rotations import axis_angle_to_quat, quat_to_axis_angle
+from mer_data.skeleton import Skeleton
 
 __all__ = [
+    "source_features",
     "FEATURE_DIM",
     "finite_difference",
     "motion_features",
@@ -69,6 +72,15 @@ def motion_features(
     feats[..., 0, 6:9] = vel[..., 0, :]
     assert feats.shape[-2] == J
     return feats
+
+
+def source_features(base_pos: np.ndarray, base_quat: np.ndarray, q: np.ndarray, skel: Skeleton, fps: float) -> np.ndarray:
+    """(F, J, 9) float64 features of a motion given as arrays: base position (F, 3) [m], base
+    orientation (F, 4) wxyz, one angle per node (F, J) [rad], at ``fps`` [Hz]."""
+    st = skeleton_tensors(skel, torch.float64)
+    f = motion_features(st, torch.from_numpy(np.asarray(base_pos, np.float64)), torch.from_numpy(np.asarray(base_quat, np.float64)),
+                        torch.from_numpy(np.asarray(q, np.float64)), fps)  # fmt: skip
+    return f.numpy()
 
 
 def split_features(feats: torch.Tensor) -> dict[str, torch.Tensor]:

@@ -22,13 +22,11 @@ from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
-import torch
 
 from mer_data.base.errors import MerError
-from mer_data.kinematics.fk import skeleton_tensors
 from mer_data.skeleton import Skeleton
 
-from .features import motion_features
+from .features import source_features
 from .lafan1 import Motion, read_lafan1_csv
 from .resample import resample
 
@@ -67,13 +65,9 @@ class SourceMotion:
     notes: tuple[str, ...] = field(default=())
 
     def features(self) -> np.ndarray:
-        """(F, J, 9) float64 world-frame features (:func:`mer_data.motion.features.motion_features`)."""
-        skel = self.skeleton
-        st = skeleton_tensors(skel, torch.float64)
+        """(F, J, 9) float64 world-frame features (:func:`mer_data.motion.features.source_features`)."""
         m = self.motion
-        f = motion_features(st, torch.from_numpy(m.base_pos), torch.from_numpy(m.base_quat),
-                            torch.from_numpy(m.node_angles(skel)), SOURCE_FPS)  # fmt: skip
-        return f.numpy()
+        return source_features(m.base_pos, m.base_quat, m.node_angles(self.skeleton), self.skeleton, SOURCE_FPS)
 
 
 def load_bvh_keypoints(path: str | Path) -> dict[str, str]:

@@ -45,6 +45,7 @@ __all__ = [
     "read_collision",
     "dump_collision",
     "shapes_from_urdf",
+    "primitive_shape",
 ]
 
 COLLISION_FILE = "collision.json"  # the name registration writes (the card may name another)
@@ -240,6 +241,20 @@ def _mesh_file(filename: str, urdf_dir: Path) -> Path | None:
     return None
 
 
+def primitive_shape(c: dict) -> Shape | None:
+    """The :class:`Shape` of a description's collision element (:attr:`~.urdf.UrdfModel.collisions`)
+    when it is a primitive (box, sphere, cylinder; MJCF's capsule along z, its length between the
+    sphere centres); None for a mesh."""
+    t = np.asarray(c["origin"], np.float64)
+    if c["type"] == "box":
+        return Shape("box", t, size=tuple(c["size"]))
+    if c["type"] == "sphere":
+        return Shape("sphere", t, radius=c["radius"])
+    if c["type"] in ("cylinder", "capsule"):
+        return Shape(c["type"], t, radius=c["radius"], length=c["length"])
+    return None
+
+
 def shapes_from_urdf(urdf: Any, *, load_meshes: bool = True, max_vertices: int = 48) -> tuple[CollisionFile, dict[str, float]]:
     """The collision shapes of a parsed URDF or MJCF (:class:`~mer_data.robots.urdf.UrdfModel`):
     primitives as they are, meshes as simplified convex hulls: a URDF's mesh files looked up under
@@ -257,14 +272,9 @@ def shapes_from_urdf(urdf: Any, *, load_meshes: bool = True, max_vertices: int =
         out = []
         for c in items:
             t = np.asarray(c["origin"], np.float64)
-            if c["type"] == "box":
-                out.append(Shape("box", t, size=tuple(c["size"])))
-            elif c["type"] == "sphere":
-                out.append(Shape("sphere", t, radius=c["radius"]))
-            elif c["type"] == "cylinder":
-                out.append(Shape("cylinder", t, radius=c["radius"], length=c["length"]))
-            elif c["type"] == "capsule":  # MJCF: along z, length between the sphere centres
-                out.append(Shape("capsule", t, radius=c["radius"], length=c["length"]))
+            prim = primitive_shape(c)
+            if prim is not None:
+                out.append(prim)
             else:
                 if "vertices" in c:  # MJCF: the compiled mesh's vertices (None: its file could not be read)
                     pts = None if c["vertices"] is None or not load_meshes else _solid(np.asarray(c["vertices"], np.float64))

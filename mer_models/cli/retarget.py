@@ -185,18 +185,12 @@ def _plain(metrics: dict | None) -> dict:
 
 
 def format_metrics(metrics: dict | None, target: str) -> str:
-    """One table row of the paper's metrics and the artifact figures (docs/model.md)."""
+    """One table row of the paper's metrics and the artifact figures (docs/model.md), as dataset runs print them."""
     if not metrics:
         return ""
-    cols = (("g_mpbpe", "g-mpbpe[m]", ".4f"), ("mpboe", "mpboe[rad]", ".3f"), ("mpbve", "mpbve[m/s]", ".3f"),
-            ("jerk_frame", "jerk", ".4f"), ("limit_violation", "limits", ".3f"), ("floor_frames", "floor<-1cm", ".3f"),
-            ("skate_median", "skate[m/s]", ".3f"), ("selfpen_1cm_frames", "selfpen>1cm", ".3f"), ("speed_frames", ">vel.lim", ".3f"))  # fmt: skip
-    head = f"{'target':10s} " + " ".join(f"{h:>11s}" for _, h, _ in cols)
-    cells = []
-    for k, _, fmt in cols:
-        v = metrics.get(k)
-        cells.append(f"{v:>11{fmt}}" if isinstance(v, (int, float)) and v == v else f"{'-':>11s}")
-    return head + "\n" + f"{target:10s} " + " ".join(cells)
+    from mer_models.retarget.dataset import metric_cells, metric_header
+
+    return f"{'target':10s} {metric_header()}\n{target:10s} {metric_cells(metrics)}"
 
 
 def _solver_bar(quiet: bool):

@@ -24,10 +24,9 @@ import numpy as np
 import torch
 
 from mer_data.base.errors import MerError
-from mer_data.kinematics.fk import skeleton_tensors
 from mer_data.kinematics.jointmap import joint_map
 from mer_data.kinematics.rotations import axis_angle_to_matrix
-from mer_data.motion.features import motion_features
+from mer_data.motion.features import source_features
 from mer_data.robots.registry import Robot, as_robot, get_skeleton
 from mer_data.skeleton import Skeleton
 from mer_models.batch import graph_from_batch
@@ -79,13 +78,6 @@ class RetargetResult:
     reference_skeleton: Skeleton | None = None
     prepared: tuple | None = None
     metrics: dict | None = None  # retarget_file(metrics=True): the paper's metrics and the artifact figures
-
-
-def source_features(base_pos: np.ndarray, base_quat: np.ndarray, q: np.ndarray, skel: Skeleton, fps: float) -> np.ndarray:
-    """(F, J, 9) float64 features of a source motion (base pose wxyz, angles per node)."""
-    st = skeleton_tensors(skel, torch.float64)
-    f = motion_features(st, torch.from_numpy(base_pos), torch.from_numpy(base_quat), torch.from_numpy(q), fps)
-    return f.numpy()
 
 
 def _check_finite(feats: np.ndarray) -> None:

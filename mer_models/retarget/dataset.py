@@ -57,7 +57,7 @@ from .long_horizon import prepare_reference
 
 log = logging.getLogger(__name__)
 
-__all__ = ["FORMATS", "Job", "find_clips", "find_bvh_clips", "plan_jobs", "retarget_dataset", "format_summary"]
+__all__ = ["FORMATS", "Job", "find_clips", "find_bvh_clips", "plan_jobs", "retarget_dataset", "format_summary", "METRIC_COLUMNS", "metric_header", "metric_cells"]
 
 FORMATS = ("csv", "npz")
 SUMMARY_KEYS = ("g_mpbpe", "mpboe", "mpbve", "jerk_frame", "limit_violation", *ARTIFACT_KEYS, "selfpen_worst", "speed_worst")
@@ -419,20 +419,32 @@ def retarget_dataset(
     return summary
 
 
+#: (key, header, format) of a retarget's metrics in the text tables (dataset summaries, one file's row).
+METRIC_COLUMNS = (("g_mpbpe", "g-mpbpe[m]", ".4f"), ("mpboe", "mpboe[rad]", ".3f"), ("mpbve", "mpbve[m/s]", ".3f"),
+                  ("jerk_frame", "jerk[r/f3]", ".4f"), ("limit_violation", "limits", ".3f"), ("floor_frames", "floor<-1cm", ".3f"),
+                  ("skate_median", "skate[m/s]", ".3f"), ("selfpen_1cm_frames", "selfpen>1cm", ".3f"),
+                  ("speed_frames", ">vel.lim", ".3f"))  # fmt: skip
+
+
+def metric_header() -> str:
+    """The header cells of :data:`METRIC_COLUMNS`."""
+    return " ".join(f"{h:>11s}" for _, h, _ in METRIC_COLUMNS)
+
+
+def metric_cells(row: dict) -> str:
+    """One row's cells of :data:`METRIC_COLUMNS` (``-`` where a metric is missing or undefined)."""
+    cells = []
+    for k, _, fmt in METRIC_COLUMNS:
+        v = row.get(k)
+        cells.append(f"{v:>11{fmt}}" if isinstance(v, (int, float)) and np.isfinite(v) else f"{'-':>11s}")
+    return " ".join(cells)
+
+
 def format_summary(summary: dict) -> str:
     """The rows as a text table (one line per clip and target) and the totals."""
-    head = (f"{'target':10s} {'clip':28s} {'frames':>7s} {'g-mpbpe[m]':>11s} {'mpboe[rad]':>11s} {'jerk[r/f3]':>11s} {'limits':>7s}"
-            f" {'floor<-1cm':>10s} {'skate[m/s]':>10s} {'selfpen>1cm':>11s} {'>vel.lim':>8s}")  # fmt: skip
-    lines = [head]
-
-    def f(r: dict, k: str, width: int, fmt: str) -> str:
-        v = r.get(k)
-        return f"{v:{width}{fmt}}" if isinstance(v, (int, float)) and np.isfinite(v) else f"{'-':>{width}s}"
-
+    lines = [f"{'target':10s} {'clip':28s} {'frames':>7s} {metric_header()}"]
     for r in sorted(summary["rows"], key=lambda r: (r["target"], r["clip"])):
-        lines.append(f"{r['target']:10s} {r['clip'][:28]:28s} {r['frames']:7d} {r['g_mpbpe']:11.4f} {r['mpboe']:11.3f} "
-                     f"{r['jerk_frame']:11.4f} {r['limit_violation']:7.3f} {f(r, 'floor_frames', 10, '.3f')} "
-                     f"{f(r, 'skate_median', 10, '.3f')} {f(r, 'selfpen_1cm_frames', 11, '.3f')} {f(r, 'speed_frames', 8, '.3f')}")  # fmt: skip
+        lines.append(f"{r['target']:10s} {r['clip'][:28]:28s} {r['frames']:7d} {metric_cells(r)}")
     fps = summary.get("frames_per_second")
     lines.append(f"{summary['jobs']} pairs in this shard: {summary['done_before']} done before, {summary['done_now']} now "
                  f"({summary['frames']} frames in {summary['seconds']} s" + (f", {fps} frames/s)" if fps else ")"))  # fmt: skip

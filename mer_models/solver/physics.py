@@ -187,11 +187,8 @@ class PhysicsInputs:
 
         g = problem.graph
         contacts = None if self.contacts is None else self.contacts.to(problem.dev)
-        phys = Physics(self.cfg, w_kp, self.model, contacts, problem.fold, ancestors(g.parents), g.axes.to(problem.dtype), self.fps)
-        if self.pairs is not None:
-            phys._near_pairs = torch.as_tensor(self.pairs, device=problem.dev).reshape(-1, 2)
-            phys._pair_mask = None if self.pair_mask is None else torch.as_tensor(self.pair_mask, device=problem.dev)
-        return phys
+        return Physics(self.cfg, w_kp, self.model, contacts, problem.fold, ancestors(g.parents), g.axes.to(problem.dtype), self.fps,
+                       pairs=self.pairs, pair_mask=self.pair_mask)  # fmt: skip
 
 
 def foot_extent(model: Any) -> tuple[float, float]:
@@ -252,13 +249,17 @@ class Physics:
         contacts: (B, T, 2) bool, the source's feet down (None: no stance / swing terms).
         fold: (B, J, D) node → actuated column (mimic joints folded); fps: frame rate [Hz] (joint speed).
         anc: (B, J, J) ``[b, k, j]`` True iff j is a strict ancestor of k; axes (B, J, 3) node axes.
+        pairs, pair_mask: (K, 2) the shape pairs the self term looks at (None: those within reach at the
+            first iterate) and (B, K) which of them each sample looks at (None: all).
     """
 
     def __init__(self, cfg: PhysicsConfig, w_kp: float, model: Any, contacts: torch.Tensor | None, fold: torch.Tensor,
-                 anc: torch.Tensor, axes: torch.Tensor, fps: float = 30.0) -> None:  # fmt: skip
+                 anc: torch.Tensor, axes: torch.Tensor, fps: float = 30.0, pairs: Any = None, pair_mask: Any = None) -> None:  # fmt: skip
         self.cfg, self.model, self.fps, self.w_kp = cfg, model, fps, w_kp
-        self._near_pairs: torch.Tensor | None = None
-        self._pair_mask: torch.Tensor | None = None  # (B, K) of _near_pairs, preset with them
+        dev = fold.device
+        # the self term's pairs (None: those near at the first iterate) and which of them each sample looks at
+        self._near_pairs = None if pairs is None else torch.as_tensor(pairs, device=dev).reshape(-1, 2)
+        self._pair_mask = None if pair_mask is None else torch.as_tensor(pair_mask, device=dev)
         self.feet_on = any(getattr(cfg, k) > 0 for k in ("w_stance", "w_flat", "w_anchor", "w_swing"))
         self.verts = torch.as_tensor(model.vertices, dtype=fold.dtype, device=fold.device)
         self.center = torch.as_tensor(model.center, dtype=fold.dtype, device=fold.device)

@@ -262,13 +262,9 @@ def _solve_samples(samples: list, solver: SolverConfig, device: str) -> tuple[np
                                 smooth=solver.smooth, fine=FINE_OF_VERSION[solver.optimizer_version], device=device, **kw)  # fmt: skip
         vals = (motion["q"].float().cpu().numpy(), motion["base_pos"].float().cpu().numpy(),
                 matrix_to_axis_angle(motion["base_rot"].float()).cpu().numpy(), motion["energy"].float().cpu().numpy())  # fmt: skip
-        for k, v in enumerate(vals):
+        for k, v in enumerate(vals):  # one target robot: every group has its node count
             if out[k] is None:
                 out[k] = np.zeros((len(samples), *v.shape[1:]), v.dtype)
-            if k == 0 and v.shape[-1] != out[0].shape[-1]:  # padded to the widest group
-                width = max(v.shape[-1], out[0].shape[-1])
-                out[0] = np.pad(out[0], [(0, 0)] * (out[0].ndim - 1) + [(0, width - out[0].shape[-1])])
-                v = np.pad(v, [(0, 0)] * (v.ndim - 1) + [(0, width - v.shape[-1])])
             out[k][idx] = v
     return tuple(out)
 

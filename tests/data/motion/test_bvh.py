@@ -8,7 +8,6 @@ The figures and the writer are tests/bvh_factory.py.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -324,15 +323,6 @@ def test_round_trip_through_conventions_matches_an_independent_fk(seed, conv, sp
 
 
 # ---- real clips -------------------------------------------------------------------------------
-
-
-@pytest.fixture(scope="module")
-def bandai(shared_dir: Path) -> list[Path]:
-    d = shared_dir / "data" / "bvh" / "bandai1"
-    files = sorted(d.glob("*.bvh"))
-    if not files:
-        pytest.skip(f"the Bandai Namco BVH clips are absent from {d}")
-    return files
 
 
 @pytest.mark.slow

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import logging
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -360,15 +359,6 @@ def test_skeleton_fk_equals_the_bvh_fk(seed, convention, order, six, frame, fps,
 
 
 # ---- real clips -------------------------------------------------------------------------------
-
-
-@pytest.fixture(scope="module")
-def bandai(shared_dir: Path) -> list[Path]:
-    d = shared_dir / "data" / "bvh" / "bandai1"
-    files = sorted(d.glob("*.bvh"))
-    if not files:
-        pytest.skip(f"the Bandai Namco BVH clips are absent from {d}")
-    return files
 
 
 BANDAI_KEYPOINTS = {

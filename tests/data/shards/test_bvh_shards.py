@@ -46,10 +46,8 @@ def test_bvh_is_built_alone_and_from_a_folder(tmp_path):
         build_shards(BuildConfig(input=str(tmp_path), robots=("bvh",), targets=("g1",), split="all"), tmp_path / "o2")
 
 
-def test_the_bandai_folder_builds(shared_dir, tmp_path):
-    src = shared_dir / "data" / "bvh" / "bandai1"
-    if not src.is_dir():
-        pytest.skip(f"no Bandai BVH clips at {src} (../shared/data/bvh)")
+def test_the_bandai_folder_builds(bandai, tmp_path):
+    src = bandai[0].parent
     d = tmp_path / "in"
     d.mkdir()
     for name in ("dataset-1_walk_normal_001", "dataset-1_kick_normal_001"):
