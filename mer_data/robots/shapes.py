@@ -40,6 +40,7 @@ __all__ = [
     "SHAPE_TYPES",
     "MAX_HULL_VERTICES",
     "Shape",
+    "mesh_file",
     "CollisionFile",
     "parse_collision",
     "read_collision",
@@ -216,7 +217,7 @@ def dump_collision(cf: CollisionFile) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _mesh_file(filename: str, urdf_dir: Path) -> Path | None:
+def mesh_file(filename: str, urdf_dir: Path) -> Path | None:
     """A mesh reference resolved under the URDF's own folder (``package://PKG/rest`` tried as
     ``rest`` under any ancestor-free prefix of that folder); None if it is not there."""
     name = filename
@@ -279,7 +280,7 @@ def shapes_from_urdf(urdf: Any, *, load_meshes: bool = True, max_vertices: int =
                 if "vertices" in c:  # MJCF: the compiled mesh's vertices (None: its file could not be read)
                     pts = None if c["vertices"] is None or not load_meshes else _solid(np.asarray(c["vertices"], np.float64))
                 else:
-                    f = _mesh_file(c["filename"], urdf_dir) if load_meshes else None
+                    f = mesh_file(c["filename"], urdf_dir) if load_meshes else None
                     pts = _mesh_points(f) if f is not None else None
                 if pts is None:
                     if link not in missing:

@@ -3,9 +3,14 @@
 * ``/mer/windows`` (schema ``mer.ShardWindow``, JSON, every field typed): one message per window
   (row) with every column; numeric arrays are ``{"dtype", "shape", "base64"}`` of their exact
   little-endian bytes, so reading back is lossless.
-* ``/tf`` (``foxglove.FrameTransforms``) and ``/skeleton`` (``foxglove.SceneUpdate``): an animation
-  of the first ``preview`` windows of every clip (all windows with ``preview < 0``), laid one after
-  another on the timeline, for Foxglove's 3D panel; their schemas are Foxglove's official ones
+* ``/tf`` (``foxglove.FrameTransforms``): an animation of the first ``preview`` windows of every
+  clip (all windows with ``preview < 0``), laid one after another on the timeline, for Foxglove's 3D
+  panel, in TF frames named after the robot's links as the retarget MCAP names them
+  (:func:`.foxglove.link_frames`: the registered robot's description links where the shard's
+  skeleton is that robot's, else its nodes' links); ``/skeleton`` (``foxglove.SceneUpdate``, once):
+  mer's stick figure on those frames; for a registered robot also ``/robot`` (its collision
+  shapes, once) and, for a URDF robot, ``/robot_description`` (the URDF, once: Foxglove's URDF layer
+  draws its meshes on the link frames). The foxglove.* schemas are Foxglove's official ones
   (:mod:`.foxglove`).
 * metadata record ``mer.shard``: :meth:`ShardMeta.to_attrs`, every value a string.
 
@@ -39,12 +44,23 @@ from mer_data.base.limits import limit, too_big
 from mer_data.base.safe_io import check_regular_file
 from mer_data.skeleton import Skeleton
 
-from .foxglove import FRAME_TRANSFORMS_SCHEMA, SCENE_UPDATE_SCHEMA, frame_transforms, scene_update
+from .foxglove import (
+    DESCRIPTION_SCHEMA,
+    FRAME_TRANSFORMS_SCHEMA,
+    SCENE_UPDATE_SCHEMA,
+    description_message,
+    motion_frames,
+    registered_robot,
+    robot_scene,
+    skeleton_scene,
+    tf_messages,
+)
 from .schema import COLUMNS, ShardMeta, column_shapes
 
-__all__ = ["McapShardWriter", "McapShard", "WINDOW_TOPIC", "TF_TOPIC", "SCENE_TOPIC"]
+__all__ = ["McapShardWriter", "McapShard", "WINDOW_TOPIC", "TF_TOPIC", "SCENE_TOPIC", "ROBOT_TOPIC", "DESCRIPTION_TOPIC"]
 
 WINDOW_TOPIC, TF_TOPIC, SCENE_TOPIC = "/mer/windows", "/tf", "/skeleton"
+ROBOT_TOPIC, DESCRIPTION_TOPIC = "/robot", "/robot_description"
 _META_NAME = "mer.shard"
 
 
@@ -100,7 +116,7 @@ class McapShardWriter:
         self.shapes = meta.shapes()
         self.preview = preview
         self._stream = open(self.path, "xb")  # exclusive: never through a planted link
-        self.w = Writer(self._stream, compression=CompressionType.ZSTD)
+        self.w = Writer(self._stream, compression=CompressionType.ZSTD, enable_data_crcs=True)  # the metadata record CRC-covered too
         self.w.start(profile="", library="mer")
         sid = self.w.register_schema("mer.ShardWindow", "jsonschema", _WINDOW_SCHEMA)
         self.ch_win = self.w.register_channel(WINDOW_TOPIC, "json", sid)
@@ -109,6 +125,14 @@ class McapShardWriter:
         sid = self.w.register_schema("foxglove.SceneUpdate", "jsonschema", SCENE_UPDATE_SCHEMA)
         self.ch_scene = self.w.register_channel(SCENE_TOPIC, "json", sid)
         self.skel = Skeleton.from_json(meta.skeletons[meta.robot])
+        self.robot = registered_robot(self.skel, meta.robot)  # None: the skeleton's nodes' links are the frames
+        self.w.add_message(self.ch_scene, 0, skeleton_scene(self.skel, 0), 0)
+        if self.robot is not None:
+            self.w.add_message(self.w.register_channel(ROBOT_TOPIC, "json", sid), 0, robot_scene(self.robot, 0), 0)
+            urdf = description_message(self.robot)
+            if urdf is not None:
+                sid = self.w.register_schema("std_msgs/String", "jsonschema", DESCRIPTION_SCHEMA)
+                self.w.add_message(self.w.register_channel(DESCRIPTION_TOPIC, "json", sid), 0, urdf, 0)
         self.rows = 0
         self.t_ns = 0  # start of the next animation slot
         self._clip, self._shown = None, 0
@@ -134,9 +158,9 @@ class McapShardWriter:
             t = self.t_ns
             self.w.add_message(self.ch_win, t, json.dumps(msg).encode(), t, sequence=self.rows)
             if animate:
-                self.w.add_message(self.ch_scene, t, scene_update(self.skel, self.meta.robot, t), t)
                 pos, rv, q = rows["pos"][i], rows["base_rotvec"][i], rows["q"][i]
-                for ns, data in frame_transforms(self.skel, self.meta.robot, pos[:, 0], rv, q, t, self.meta.fps):
+                frames = motion_frames(self.skel, self.robot, pos[:, 0], rv, q)
+                for ns, data in tf_messages(frames, self.meta.fps, t):
                     self.w.add_message(self.ch_tf, ns, data, ns)
                 self.t_ns += self._slot_ns
                 self._shown += 1
@@ -276,7 +300,9 @@ class McapShard:
                                    fix="rebuild it") from None  # fmt: skip
         if not metas:
             raise ShardFormatError("not a mer shard (no 'mer.shard' metadata record)", path=self.path)
-        self.meta = ShardMeta.from_attrs(dict(metas[0].metadata), self.path)
+        from .hdf5_io import check_skeletons  # the metadata record has no CRC of its own: check what it holds
+
+        self.meta = check_skeletons(ShardMeta.from_attrs(dict(metas[0].metadata), self.path), self.path)
         self._cols: dict[str, np.ndarray] | None = None
 
     @property

@@ -35,7 +35,7 @@ from mer_data.base.atomic import atomic_write
 from mer_data.base.errors import OutputError
 from mer_data.robots.articulation import articulation, urdf_visual_meshes
 from mer_data.robots.registry import Robot
-from mer_data.robots.shapes import _mesh_file
+from mer_data.robots.shapes import mesh_file
 
 from .geometry import fitted_hulls, link_shapes
 
@@ -150,7 +150,7 @@ def mjcf_model(robot: Robot) -> str:
                     g.set("size", _num(size))
                     _pose(g, t)
             for filename, t, scale in visuals.get(link, ()):
-                f = _mesh_file(filename, folder)
+                f = mesh_file(filename, folder)
                 if f is None or f.suffix.lower() not in _MESH_SUFFIXES:
                     unused.append(filename)
                     continue

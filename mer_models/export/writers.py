@@ -26,7 +26,7 @@ neither tracker's ``MotionLoader`` reads the names. ``body_lin_vel_w`` is what e
 the link origin's velocity for mjlab (``body_link_lin_vel_w``), the centre of mass's for
 BeyondMimic (Isaac Lab's ``body_lin_vel_w``).
 
-**MCAP** (:mod:`.foxglove_robot`): JSON channels ``/tf`` (``foxglove.FrameTransforms``, one message per
+**MCAP** (:mod:`mer_data.shards.foxglove`): JSON channels ``/tf`` (``foxglove.FrameTransforms``, one message per
 frame; frames named after the robot's URDF / MJCF links, ``world`` the fixed frame), ``/robot``
 (``foxglove.SceneUpdate``: the robot's collision shapes on its link frames), ``/robot_description``
 (the URDF as ``std_msgs/String``, which Foxglove's URDF layer reads), ``/skeleton`` (mer's stick
@@ -267,7 +267,7 @@ def write_npz(
 def write_mcap(
     path: str | Path, motion: TargetMotion, *, reference_points: np.ndarray | None = None, robot: Robot | None = None
 ) -> Path:
-    """Foxglove MCAP of the motion (see the module docstring and :mod:`.foxglove_robot`).
+    """Foxglove MCAP of the motion (see the module docstring and :mod:`mer_data.shards.foxglove`).
 
     ``reference_points``: (F, K, 3) scaled reference key points [m] drawn as red spheres.
     ``robot``: the motion's robot (default: the registered robot the skeleton is named after, when
@@ -275,9 +275,17 @@ def write_mcap(
     """
     from mcap.writer import Writer
 
-    from mer_data.shards.foxglove import FRAME_TRANSFORMS_SCHEMA, SCENE_UPDATE_SCHEMA, sphere_scene
-
-    from .foxglove_robot import DESCRIPTION_SCHEMA, description_message, link_frames, robot_scene, skeleton_scene, tf_messages
+    from mer_data.shards.foxglove import (
+        DESCRIPTION_SCHEMA,
+        FRAME_TRANSFORMS_SCHEMA,
+        SCENE_UPDATE_SCHEMA,
+        description_message,
+        link_frames,
+        robot_scene,
+        skeleton_scene,
+        sphere_scene,
+        tf_messages,
+    )
 
     check_motion_finite(motion, path)
     if reference_points is not None:

@@ -526,13 +526,13 @@ def test_hightorque_hi_urdf_and_mjcf_give_the_same_skeleton(mjcf_dir):
     # collision meshes: MuJoCo's compiled vertices, placed by the MJCF, are the URDF's STL points placed by the URDF
     from scipy.spatial import cKDTree
 
-    from mer_data.robots.shapes import _mesh_file, _mesh_points
+    from mer_data.robots.shapes import _mesh_points, mesh_file
 
     u_geo = load_mjcf(d / "hi_25dof.xml")
     for link in ("l_ankle_roll_link", "r_elbow_link"):
         e, c = u_geo.collisions[link][0], u_ur.collisions[link][0]
         mj = e["vertices"] @ e["origin"][:3, :3].T + e["origin"][:3, 3]
-        ur = _mesh_points(_mesh_file(c["filename"], d)) * c["scale"] @ c["origin"][:3, :3].T + c["origin"][:3, 3]
+        ur = _mesh_points(mesh_file(c["filename"], d)) * c["scale"] @ c["origin"][:3, :3].T + c["origin"][:3, 3]
         assert cKDTree(ur).query(mj)[0].max() < 1e-6 and cKDTree(mj).query(ur)[0].max() < 1e-6, link
     hull = shapes_from_urdf(dataclasses.replace(u_geo, collisions={"l_ankle_roll_link": u_geo.collisions["l_ankle_roll_link"]}))[0]
     assert hull.links["l_ankle_roll_link"][0].type == "hull" and len(hull.links["l_ankle_roll_link"][0].vertices) <= 48

@@ -85,10 +85,12 @@ def test_every_message_of_a_shard_mcap_validates(tmp_path, capsys):
     total = {}
     for path in files:
         assert {t: n for t, (n, _) in _schemas(path).items()} == {
-            "/mer/windows": "mer.ShardWindow", "/tf": "foxglove.FrameTransforms", "/skeleton": "foxglove.SceneUpdate"}  # fmt: skip
+            "/mer/windows": "mer.ShardWindow", "/tf": "foxglove.FrameTransforms", "/skeleton": "foxglove.SceneUpdate",
+            "/robot": "foxglove.SceneUpdate", "/robot_description": "std_msgs/String"}  # fmt: skip
         for topic, n in check_mcap(path).items():
             total[topic] = total.get(topic, 0) + n
-    assert total["/mer/windows"] > 0 and total["/tf"] > 0 and total["/skeleton"] > 0
+    assert total["/mer/windows"] > 0 and total["/tf"] > 0
+    assert total["/skeleton"] == total["/robot"] == total["/robot_description"] == len(files)  # once per file
 
 
 def test_a_nonconforming_message_is_caught(tmp_path):

@@ -86,6 +86,12 @@ def _world_from_transforms(msg: dict) -> dict[str, np.ndarray]:
 
 
 def test_mcap_is_a_foxglove_scene_of_the_skeleton(both):
+    """TF frames are the URDF's links (Foxglove's URDF layer attaches the robot's visuals to them),
+    the URDF and the collision shapes ride along, once per file."""
+    from lxml import etree
+
+    from mer_data.robots.registry import load_robot
+
     _, mc = both
     path = mc / "h1-train-00000-of-00001.mcap"
     shard = open_shard(path)
@@ -94,22 +100,30 @@ def test_mcap_is_a_foxglove_scene_of_the_skeleton(both):
         reader = make_reader(f)
         summary = reader.get_summary()
         schemas = {c.topic: summary.schemas[c.schema_id].name for c in summary.channels.values()}
-        assert schemas == {"/mer/windows": "mer.ShardWindow", "/tf": "foxglove.FrameTransforms", "/skeleton": "foxglove.SceneUpdate"}
+        assert schemas == {"/mer/windows": "mer.ShardWindow", "/tf": "foxglove.FrameTransforms", "/skeleton": "foxglove.SceneUpdate",
+                           "/robot": "foxglove.SceneUpdate", "/robot_description": "std_msgs/String"}  # fmt: skip
         assert {c.message_encoding for c in summary.channels.values()} == {"json"}
         tfs = [json.loads(m.data) for _, _, m in reader.iter_messages(topics=["/tf"])]
     with open(path, "rb") as f:
-        scenes = [json.loads(m.data) for _, _, m in make_reader(f).iter_messages(topics=["/skeleton"])]
+        msgs = {}
+        for _, ch, m in make_reader(f).iter_messages(topics=["/skeleton", "/robot", "/robot_description"]):
+            msgs.setdefault(ch.topic, []).append(json.loads(m.data))
+    scenes, urdf = msgs["/skeleton"], msgs["/robot_description"][0]["data"]
     clips = len(shard.meta.sources)
-    assert len(tfs) == clips * 2 * 60 and len(scenes) == clips * 2  # 2 preview windows per clip, 60 frames each
-    assert all(len(m["transforms"]) == skel.num_nodes for m in tfs)
+    assert len(tfs) == clips * 2 * 60 and len(scenes) == len(msgs["/robot"]) == 1  # 2 preview windows per clip, 60 frames each
+    assert urdf == load_robot("h1").urdf_path.read_text()
+    links = {el.get("name") for el in etree.fromstring(urdf.encode()).findall("link")}
+    assert all({t["child_frame_id"] for t in m["transforms"]} == links for m in tfs)
     ents = scenes[0]["entities"]
-    assert len(ents) == skel.num_nodes and sum(len(e["lines"][0]["points"]) // 2 for e in ents if e["lines"]) == skel.num_nodes - 1
-    # composing the transforms of a frame reproduces the stored node positions (the FK of the data)
+    joints = [j for j in range(skel.num_nodes) if skel.node_kinds[j] != "site"]
+    assert len(ents) == len(joints) and sum(len(e["lines"][0]["points"]) // 2 for e in ents if e["lines"]) == skel.num_nodes - 1
+    # composing the transforms of a frame reproduces the stored node positions (the FK of the data):
+    # every joint node sits at the origin of its link's frame
     pos = shard.row("pos", 0)
     for t in (0, 31, 59):
         world = _world_from_transforms(tfs[t])
-        got = np.stack([world[f"h1/{n}"] for n in skel.node_names])
-        np.testing.assert_allclose(got, pos[t], atol=1e-5)
+        got = np.stack([world[skel.link_names[j]] for j in joints])
+        np.testing.assert_allclose(got, pos[t, joints], atol=1e-5)
     # and the stored angles drive the foundation's FK to the same place
     st = skeleton_tensors(skel, torch.float64)
     q = torch.from_numpy(shard.row("q", 0).astype(np.float64))

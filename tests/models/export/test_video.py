@@ -71,14 +71,16 @@ def _ink(rgb: np.ndarray) -> np.ndarray:
 
 
 def test_the_two_panels_differ_where_the_motions_differ(tmp_path):
-    """The robot = the reference drifting 0.8 m along +x: the same picture at frame 0, apart at the end."""
+    """The robot = the reference drifting 0.8 m along +x: the same place at frame 0, apart at the end
+    (the robot drawn with its collision shapes, the reference with its bones: compared by where
+    their colour is centred)."""
     ref = _motion(12)
     robot = _motion(12, drift=0.8)
     frames, _ = _gif_frames(write_video(tmp_path / "v.gif", robot, size=SIZE, **_reference_of(ref)))
     w = SIZE[0] // 2
     first, last = frames[0], frames[-1]
     left, right = _ink(first[:, :w]), _ink(first[:, w:])
-    assert len(left) > 10 and abs(left.min() - right.min()) <= 2 and abs(left.max() - right.max()) <= 2
+    assert len(left) > 10 and len(right) > 10 and abs(left.mean() - right.mean()) <= 4
     left, right = _ink(last[:, :w]), _ink(last[:, w:])
     assert abs(right.mean() - left.mean()) > 15  # 0.8 m apart: the robot is drawn elsewhere than the reference
 
