@@ -29,7 +29,8 @@ downloads), used by the shard tooling's tests.
 Bounded: binds 127.0.0.1 on ephemeral ports, counts every request (``requests``), answers 503
 after ``max_requests``, refuses bodies over ``max_body`` bytes, and stops itself after
 ``lifetime_s`` seconds. Test hooks: :meth:`tamper` (serve other bytes under the same metadata, as a
-compromised mirror would) and :meth:`stop`.
+compromised mirror would), :meth:`lie` (a server that lies in its metadata: commit ids, ETags,
+listed sizes, extra listed files), :meth:`put` (commit files directly) and :meth:`stop`.
 """
 
 from __future__ import annotations
@@ -171,6 +172,7 @@ class HubServer:
         self.dataset_repos: dict[str, Repo] = {}
         self.lfs_store: dict[str, bytes] = {}
         self._tampered: dict[tuple[str, str], bytes] = {}
+        self.lies: dict = {}
         self._log: list[tuple[str, str]] = []
         self._lock = threading.RLock()
         self._counter = 0
@@ -216,6 +218,30 @@ class HubServer:
     def tamper(self, repo_id: str, path: str, data: bytes) -> None:
         """Serve ``data`` for ``path`` at every revision, with the original headers (a compromised mirror)."""
         self._tampered[(repo_id, path)] = data
+
+    def lie(self, *, sha: str | None = None, commit: str | None = None, etag: dict[str, str] | None = None,
+            size: dict[str, int] | None = None, extra: list[dict] | None = None) -> None:
+        """Lie from now on: ``sha`` in repository info, ``commit`` in ``X-Repo-Commit``, ``etag`` (path -> value)
+        in ``ETag``/``X-Linked-Etag``, ``size`` (path -> bytes) in listings, ``extra`` entries appended to
+        every tree listing (e.g. ``{"type": "file", "path": "../../x.h5", "size": 1, "oid": "0" * 40}``)."""
+        for key, value in (("sha", sha), ("commit", commit), ("etag", etag), ("size", size), ("extra", extra)):
+            if value is not None:
+                self.lies[key] = value
+
+    def put(self, repo_id: str, files: dict[str, bytes], *, kind: str = "dataset", lfs: bool | None = None) -> str:
+        """Commit ``files`` (path -> bytes) on ``main`` of ``repo_id`` (created if missing); returns the commit id.
+        LFS: as the Hub decides (suffix or size) unless ``lfs`` says."""
+        with self._lock:
+            repo = self._kind(kind).get(repo_id) or self.create_repo(repo_id, kind=kind)
+            head = repo.branches["main"]
+            new = dict(repo.commits[head].files)
+            for path, data in files.items():
+                big = path.endswith(LFS_SUFFIXES) or len(data) >= LFS_MIN_SIZE
+                blob = Blob(data, big if lfs is None else lfs)
+                if blob.lfs:
+                    self.lfs_store[blob.sha256] = data
+                new[path] = blob
+            return self._commit(repo, head, "put", new)
 
     # -- repository model --------------------------------------------------------------------
     def _kind(self, kind: str) -> dict[str, Repo]:
@@ -377,20 +403,22 @@ class HubServer:
         repo = self._repo(repo_id, h, kind)
         commit = self._at(repo, rev)
         blob = commit.files.get(path)
-        base = {"X-Repo-Commit": commit.oid}
+        base = {"X-Repo-Commit": self.lies.get("commit", commit.oid)}
         if blob is None:
             raise _Reply(404, {"error": "Entry not found"}, base, error="EntryNotFound")
+        etag = self.lies.get("etag", {}).get(path, blob.etag)
         if blob.lfs:
             loc = f"{self.cdn_url}/lfs/{blob.sha256}/{repo_id}::{path}"
-            return 302, b"", {**base, "Location": loc, "ETag": f'"{blob.oid}"', "X-Linked-Etag": f'"{blob.sha256}"',
+            return 302, b"", {**base, "Location": loc, "ETag": f'"{blob.oid}"', "X-Linked-Etag": f'"{etag}"',
                               "X-Linked-Size": str(len(blob.data))}
-        return self._ranged(h, self._served(repo_id, path, blob), {**base, "ETag": f'"{blob.etag}"'})
+        return self._ranged(h, self._served(repo_id, path, blob), {**base, "ETag": f'"{etag}"'})
 
     def _info(self, repo: Repo, commit: Commit):
         siblings = [{"rfilename": p, "size": len(b.data), "blobId": b.oid,
                      **({"lfs": {"sha256": b.sha256, "size": len(b.data), "pointerSize": len(lfs_pointer(b.sha256, len(b.data)))}} if b.lfs else {})}
                     for p, b in sorted(commit.files.items())]
-        return 200, {"_id": repo.repo_id, "id": repo.repo_id, "modelId": repo.repo_id, "sha": commit.oid, "private": repo.private,
+        return 200, {"_id": repo.repo_id, "id": repo.repo_id, "modelId": repo.repo_id, "sha": self.lies.get("sha", commit.oid),
+                     "private": repo.private,
                      "disabled": False, "gated": False, "lastModified": commit.date, "tags": [], "siblings": siblings}, {}
 
     def _tree(self, repo: Repo, commit: Commit, prefix: str, recursive: bool):
@@ -402,12 +430,13 @@ class HubServer:
             if "/" in rel and not recursive:
                 dirs.add((prefix.rstrip("/") + "/" if prefix else "") + rel.split("/")[0])
                 continue
-            entry = {"type": "file", "oid": b.oid, "size": len(b.data), "path": p}
+            size = self.lies.get("size", {}).get(p, len(b.data))
+            entry = {"type": "file", "oid": b.oid, "size": size, "path": p}
             if b.lfs:
-                entry["lfs"] = {"oid": b.sha256, "size": len(b.data), "pointerSize": len(lfs_pointer(b.sha256, len(b.data)))}
+                entry["lfs"] = {"oid": b.sha256, "size": size, "pointerSize": len(lfs_pointer(b.sha256, len(b.data)))}
             out.append(entry)
         out += [{"type": "directory", "oid": hashlib.sha1(d.encode()).hexdigest(), "size": 0, "path": d} for d in sorted(dirs)]
-        return 200, out, {}
+        return 200, out + list(self.lies.get("extra", [])), {}
 
     def _create(self, h, req: dict):
         self._auth(h)
@@ -541,7 +570,7 @@ class FakeHub:
                         parts = p.split("/")
                         for i in range(1, len(parts)):
                             dirs.add("/".join(parts[:i]))
-                        entries.append({"type": "file", "path": p, "size": len(data), "oid": hashlib.sha1(data).hexdigest()})
+                        entries.append({"type": "file", "path": p, "size": len(data), "oid": git_oid(data)})
                     entries += [{"type": "directory", "path": d, "oid": "0" * 40, "size": 0} for d in sorted(dirs)]
                     return self._json(entries)
                 if path.startswith(resolve):
@@ -549,7 +578,7 @@ class FakeHub:
                     if name not in hub.files or rev not in ("main", hub.commit):
                         return self._send(404, b'{"error":"Entry not found"}', {"X-Error-Code": "EntryNotFound"}, head)
                     data = hub.files[name]
-                    etag = '"' + hashlib.sha1(data).hexdigest() + '"'
+                    etag = '"' + git_oid(data) + '"'
                     return self._send(200, data, {"ETag": etag, "X-Repo-Commit": hub.commit,
                                                   "Content-Type": "application/octet-stream"}, head)  # fmt: skip
                 if path.startswith("/api/datasets/"):

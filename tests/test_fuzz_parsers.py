@@ -516,3 +516,185 @@ def test_fuzz_hdf5_shard_datasets(data, shard_files, tmp_path_factory):
                 dtype_new = dtype if dtype.kind != "O" else np.dtype("<f4")
             f.create_dataset(name, shape=shape_new, dtype=dtype_new)
     _run("HDF5 shard", _read_shard, p)
+
+
+# ---- HDF5 filters and attributes from strangers (issue 41): LZF and deflate bombs, filter orders ----
+
+
+def _lzf(fn: str):
+    import ctypes
+
+    import h5py
+
+    f = getattr(ctypes.CDLL(h5py.h5z.__file__), fn)
+    f.argtypes = [ctypes.c_char_p, ctypes.c_uint, ctypes.c_void_p, ctypes.c_uint]
+    f.restype = ctypes.c_uint
+    return f
+
+
+def lzf_compress(data: bytes) -> bytes:
+    import ctypes
+
+    out = ctypes.create_string_buffer(len(data) + 64)
+    n = _lzf("lzf_compress")(data, len(data), out, len(out))
+    assert n, "incompressible"
+    return out.raw[:n]
+
+
+def lzf_bomb(n_out: int) -> bytes:
+    """An LZF stream of ``n_out`` zero bytes at LZF's best ratio (3 bytes -> 264)."""
+    return b"\x00\x00" + b"\xe0\xff\x00" * (-(-(n_out - 1) // 264))
+
+
+_PIPELINES = [("lzf",), ("shuffle", "lzf"), ("gzip",), ("shuffle", "gzip"), ("lzf", "fletcher32"), ("gzip", "lzf"),
+              ("lzf", "shuffle"), ("shuffle", "gzip", "fletcher32"), ("scaleoffset",), ("nbit",)]  # fmt: skip
+
+
+def _replace_pos(path: Path, pipeline: tuple[str, ...], payload: bytes | None, chunk_rows: int = 1) -> None:
+    """Replace dataset ``pos`` by one with the filters of ``pipeline`` (in order), chunks of
+    ``chunk_rows`` rows (more than it has: it is extensible) and ``payload`` as the stored bytes of
+    its first chunk (None: nothing stored)."""
+    import h5py
+
+    with h5py.File(path, "r+") as f:
+        shape = f["pos"].shape
+        del f["pos"]
+        dcpl = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
+        dcpl.set_chunk((chunk_rows,) + shape[1:])
+        for name in pipeline:
+            if name == "lzf":
+                dcpl.set_filter(32000, h5py.h5z.FLAG_OPTIONAL, (4, 261, chunk_rows * int(np.prod(shape[1:])) * 4))
+            elif name == "gzip":
+                dcpl.set_deflate(4)
+            elif name == "shuffle":
+                dcpl.set_shuffle()
+            elif name == "fletcher32":
+                dcpl.set_fletcher32()
+            elif name == "scaleoffset":
+                dcpl.set_scaleoffset(h5py.h5z.SO_FLOAT_DSCALE, 3)
+            elif name == "nbit":
+                dcpl.set_filter(h5py.h5z.FILTER_NBIT, h5py.h5z.FLAG_OPTIONAL, ())
+        space = h5py.h5s.create_simple(shape, (h5py.h5s.UNLIMITED,) + shape[1:])
+        d = h5py.h5d.create(f.id, b"pos", h5py.h5t.IEEE_F32LE, space, dcpl=dcpl)
+        if payload is not None:
+            d.write_direct_chunk((0,) * len(shape), payload, 0)
+
+
+@fuzz_settings(40)
+@given(data=st.data())
+def test_fuzz_hdf5_filter_pipelines_and_chunks(data, shard_files, tmp_path_factory):
+    """Filters in any order, chunks that are bombs, garbage, cut or valid: read, or a MerError, bounded."""
+    import zlib
+
+    p = tmp_path_factory.mktemp("filters") / "s.h5"
+    p.write_bytes(shard_files["hdf5"])
+    import h5py
+
+    with h5py.File(p, "r") as f:
+        cbytes = int(np.prod(f["pos"].shape[1:])) * 4
+    pipeline = data.draw(st.sampled_from(_PIPELINES))
+    kind = data.draw(st.sampled_from(["bomb", "valid", "garbage", "cut", "empty"]))
+    outer = next((x for x in reversed(pipeline) if x in ("lzf", "gzip")), None)
+    raw = np.zeros(cbytes, np.uint8).tobytes() if kind != "bomb" else bytes(64 * cbytes)
+    if kind in ("bomb", "valid", "cut"):
+        payload = lzf_bomb(len(raw)) if outer == "lzf" and kind == "bomb" else lzf_compress(raw) if outer == "lzf" \
+            else zlib.compress(raw, 9) if outer == "gzip" else raw  # fmt: skip
+        if kind == "cut":
+            payload = payload[: data.draw(st.integers(0, max(len(payload) - 1, 0)))]
+    elif kind == "garbage":
+        payload = data.draw(st.binary(min_size=1, max_size=512))
+    else:
+        payload = None
+    _replace_pos(p, pipeline, payload)
+    rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    _run("HDF5 filters", _read_shard, p)
+    grown = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - rss0) * 1024
+    assert grown < MEMORY_BOUND, f"peak RSS grew by {grown / 2**20:.0f} MiB on {pipeline} {kind}"
+
+
+def test_an_lzf_chunk_that_inflates_past_its_size_is_refused(shard_files, tmp_path):
+    """LZF decompresses 88x at best and h5py's filter grows its buffer until the output fits: a chunk
+    stored within its declared size may expand 88-fold (it was read as zeros, silently)."""
+    from mer_data.base.errors import ShardFormatError
+
+    p = tmp_path / "s.h5"
+    p.write_bytes(shard_files["hdf5"])
+    import h5py
+
+    with h5py.File(p, "r") as f:
+        cbytes = int(np.prod(f["pos"].shape[1:])) * 4
+    bomb = lzf_bomb(60 * cbytes)
+    assert len(bomb) < cbytes  # stored within its declared size: only decompressing tells
+    _replace_pos(p, ("shuffle", "lzf"), bomb)
+    with pytest.raises(ShardFormatError, match="inflates to more than its declared"):
+        _read_shard(p)
+    _replace_pos(p, ("lzf", "shuffle"), lzf_compress(bytes(cbytes)))  # compression under another filter: unchecked
+    with pytest.raises(ShardFormatError, match="after compressing"):
+        _read_shard(p)
+
+
+def _rss_probe(script: str, *args: str) -> dict:
+    """Run ``script`` in a fresh interpreter; it prints one JSON line, with the growth of VmHWM as "rss_growth"."""
+    import subprocess
+    import sys
+
+    head = ("import json, sys, time\n"
+            "def hwm():\n    return int(next(l for l in open('/proc/self/status') if l.startswith('VmHWM')).split()[1]) * 1024\n")  # fmt: skip
+    r = subprocess.run([sys.executable, "-c", head + script, *args], capture_output=True, text=True, timeout=300,
+                       env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})  # fmt: skip
+    assert r.returncode == 0, r.stderr[-3000:]
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+_OPEN_AND_READ = """
+from mer_data.base.errors import MerError
+from mer_data.shards import ShardDataset
+base, t = hwm(), time.perf_counter()
+try:
+    ds = ShardDataset(sys.argv[1], teacher=None)
+    [ds[i] for i in range(len(ds))]
+    err = None
+except MerError as exc:
+    err = str(exc)
+print(json.dumps({"error": err, "s": time.perf_counter() - t, "rss_growth": hwm() - base}))
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs /proc (Linux) to read the peak RSS")
+def test_worst_lzf_chunk_and_huge_attribute_stay_bounded(shard_files, tmp_path):
+    """The largest chunk mer accepts (16 MiB declared) stored as an LZF bomb (1.4 GB of output), and an
+    80 MB string attribute: each a MerError within seconds and 128 (160) MiB of resident growth (HDF5 would
+    take minutes and 1.4 GB for the first, ~400 MB for the second)."""
+    import h5py
+
+    p = tmp_path / "lzf.h5"
+    p.write_bytes(shard_files["hdf5"])
+    with h5py.File(p, "r") as f:
+        row = int(np.prod(f["pos"].shape[1:])) * 4
+    rows = (16 << 20) // row  # the largest chunk under MER_MAX_HDF5_CHUNK_BYTES
+    _replace_pos(p, ("shuffle", "lzf"), lzf_bomb(87 * rows * row)[: rows * row], chunk_rows=rows)
+    got = _rss_probe(_OPEN_AND_READ, str(p))
+    assert got["error"] and "inflates" in got["error"] and got["s"] < 10 and got["rss_growth"] < 128 << 20, got
+    q = tmp_path / "attr.h5"
+    q.write_bytes(shard_files["hdf5"])
+    with h5py.File(q, "r+") as f:
+        f.attrs["config"] = json.dumps({"x": "y" * 80_000_000})
+    got = _rss_probe(_OPEN_AND_READ, str(q))
+    assert got["error"] and "MER_MAX_HDF5_ATTR_BYTES" in got["error"] and got["rss_growth"] < 160 << 20, got
+
+
+def test_a_chunk_too_short_for_its_checksum_is_refused(shard_files, tmp_path):
+    """HDF5's Fletcher-32 filter reads the 4 bytes of its checksum from the chunk's end without
+    checking there are 4: a 3-byte chunk read out of bounds (a segfault, found by the fuzz test above)."""
+    import zlib
+
+    from mer_data.base.errors import ShardFormatError
+
+    p = tmp_path / "s.h5"
+    p.write_bytes(shard_files["hdf5"])
+    _replace_pos(p, ("shuffle", "gzip", "fletcher32"), b"\x01\x02\x03")
+    with pytest.raises(ShardFormatError, match="too few for its checksum"):
+        _read_shard(p)
+    _replace_pos(p, ("shuffle", "gzip"), zlib.compress(b"\0" * 4096)[:-6])  # a cut stream: less than the chunk
+    with pytest.raises(ShardFormatError, match="not valid compressed data|decompresses to"):
+        _read_shard(p)

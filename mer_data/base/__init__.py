@@ -3,7 +3,9 @@
 * :mod:`.errors` - one exception hierarchy, each error naming file, line, element and fix;
 * :mod:`.limits` - the size limits on untrusted input;
 * :mod:`.safe_io` - reading untrusted files (regular files only, size-capped, gunzip capped);
-* :mod:`.atomic` - writes that are never seen half-done; :mod:`.locks` - one owner per output;
+* :mod:`.atomic` - writes that are never seen half-done, never through a planted link, and a full
+  disk as one error; :mod:`.locks` - one owner per output;
+* :mod:`.hub_files` - downloads from a Hub server that may lie (checked, capped, hashed);
 * :mod:`.finite` - the last check before anything is written: every number finite;
 * :mod:`.suggest` - "did you mean ...?" for names typed by hand (robots, models).
 """

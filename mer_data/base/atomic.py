@@ -9,6 +9,14 @@ error the temporary is removed and the target is left as it was.
 Temporary siblings carry their owner (``.tmp-<name>~<host>~<pid>~<random>``), so a sweep of stale
 leftovers (:func:`sweep_stale`) removes only those of processes that are gone and never the
 folder another process is still writing.
+
+Nothing is written through a planted name: temporary files are created exclusively and without
+following links (``O_CREAT | O_EXCL | O_NOFOLLOW``), the final rename replaces the name itself
+(never what a link there points to), and folders mer chooses below one the user named
+(:func:`real_folder`: ``teacher/``, ``.partial/``) must be real folders, not symbolic links. A full
+disk is one :class:`~mer_data.base.errors.DiskFullError` naming the path, the bytes the write needs
+and the bytes free (:func:`disk_full`), never a traceback; :func:`reserve_space` claims the room of
+a file written by a library that cannot survive ``ENOSPC`` (HDF5) before it writes a byte.
 """
 
 from __future__ import annotations
@@ -19,12 +27,32 @@ import os
 import re
 import shutil
 import socket
+import stat
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_write", "atomic_dir", "owner_tag", "owner_alive", "recover_dir", "sweep_stale", "trash_dir"]
+from .errors import DiskFullError, OutputPathError
+
+__all__ = [
+    "atomic_write",
+    "atomic_dir",
+    "owner_tag",
+    "owner_alive",
+    "recover_dir",
+    "sweep_stale",
+    "trash_dir",
+    "real_folder",
+    "create_new",
+    "disk_full",
+    "is_disk_full",
+    "disk_full_as_error",
+    "reserve_space",
+    "release_reserve",
+    "free_bytes",
+]
 
 #: Leftovers of another host (whose processes cannot be checked) are swept after this long [s].
 FOREIGN_STALE_SECONDS = 24 * 3600
@@ -69,24 +97,179 @@ def _chmod_like_open(path: str | Path, *, folder: bool) -> None:
     os.chmod(path, (0o777 if folder else 0o666) & ~_umask())
 
 
-def atomic_write(path: str | Path, data: bytes | str) -> Path:
-    """Write ``data`` (bytes, or text as UTF-8 with ``\\n`` newlines) to ``path`` atomically."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    payload = data.encode("utf-8") if isinstance(data, str) else data
-    # owner-tagged, so that sweep_stale can tell a dead writer's leftover from a live one's file
-    fd, tmp = tempfile.mkstemp(prefix=f".tmp-{path.name}~{owner_tag()}~", dir=path.parent)
+_NOFOLLOW = getattr(os, "O_NOFOLLOW", 0)
+_CLOEXEC = getattr(os, "O_CLOEXEC", 0)
+
+
+def free_bytes(path: str | Path) -> int | None:
+    """Bytes free to this user on the file system of ``path`` (its nearest existing folder); None if unknown."""
+    p = Path(path)
+    for q in (p, *p.parents):
+        try:
+            st = os.statvfs(q)
+        except (OSError, AttributeError):
+            continue
+        return st.f_bavail * st.f_frsize
+    return None
+
+
+def _size(n: int) -> str:
+    for unit, scale in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if n >= scale:
+            return f"{n / scale:.1f} {unit}"
+    return f"{n} bytes"
+
+
+def is_disk_full(exc: BaseException) -> bool:
+    """Whether ``exc`` says the disk (or the quota) is full: ``ENOSPC``/``EDQUOT``, or HDF5's text of it."""
+    if isinstance(exc, DiskFullError):
+        return True
+    if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        return True
+    text = str(exc)
+    return isinstance(exc, (OSError, RuntimeError)) and ("No space left on device" in text or "errno = 28," in text)
+
+
+def disk_full(path: str | Path, need: int | None = None) -> DiskFullError:
+    """The one-line error for a full disk at ``path``: the bytes the write needs and the bytes free."""
+    free = free_bytes(Path(path).parent)
+    needs = f"writing it needs about {_size(need)}" if need else "no room to write it"
+    has = f", {_size(free)} free there" if free is not None else ""
+    return DiskFullError(f"the disk is full: {needs}{has}; free space (or quota) or write elsewhere, then run again",
+                         path=path)  # fmt: skip
+
+
+@contextmanager
+def disk_full_as_error(path: str | Path, need: int | None = None) -> Iterator[None]:
+    """Within the block, an ``ENOSPC``/``EDQUOT`` (or HDF5's report of it) becomes :func:`disk_full`."""
     try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(payload)
-            fh.flush()
-            os.fsync(fh.fileno())
-        _chmod_like_open(tmp, folder=False)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        yield
+    except DiskFullError:
         raise
+    except (OSError, RuntimeError) as exc:
+        if is_disk_full(exc):
+            raise disk_full(path, need) from None
+        raise
+
+
+def real_folder(folder: str | Path, below: str | Path) -> Path:
+    """``folder`` (created if missing), refusing any component below ``below`` that is a symbolic link
+    or not a folder: a folder mer chooses (``teacher/``, ``.partial/``) in one a user or a stranger
+    made may not lead elsewhere. ``below`` itself, the folder the user named, is taken as it is.
+    """
+    folder, below = Path(folder), Path(below)
+    try:
+        rel = folder.relative_to(below)
+    except ValueError:
+        raise ValueError(f"{folder} is not below {below}") from None
+    below.mkdir(parents=True, exist_ok=True)
+    cur = below
+    for part in rel.parts:
+        cur = cur / part
+        try:
+            os.mkdir(cur)  # never follows a link: an existing name (link included) is EEXIST
+            continue
+        except FileExistsError:
+            pass
+        st = os.lstat(cur)
+        if stat.S_ISLNK(st.st_mode):
+            raise OutputPathError(f"is a symbolic link (to {os.readlink(cur)!r}); mer writes only into a real folder here",
+                                  path=cur, fix="remove the link (it is not a folder mer made) and run again")  # fmt: skip
+        if not stat.S_ISDIR(st.st_mode):
+            raise OutputPathError("is not a folder; mer keeps its files in a folder of this name", path=cur,
+                                  fix="move it away and run again")  # fmt: skip
+    return folder
+
+
+def create_new(path: str | Path, mode: int = 0o666) -> int:
+    """A new file at ``path`` opened for writing: created exclusively, never through a link (``O_EXCL |
+    O_NOFOLLOW``); permissions ``mode & ~umask``, as ``open`` gives. Returns the descriptor."""
+    return os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW | _CLOEXEC, mode)
+
+
+def _new_temp(final: Path) -> tuple[int, Path]:
+    """An exclusive owner-tagged temporary file beside ``final`` (see :func:`sweep_stale`)."""
+    for _ in range(100):
+        tmp = _owned_name("tmp", final)
+        try:
+            return create_new(tmp), tmp
+        except FileExistsError:
+            continue
+    raise FileExistsError(errno.EEXIST, "no free temporary name", str(final))
+
+
+def _refuse_non_file(path: Path) -> None:
+    """A final name that is a folder or a special file is not replaced (a link or a file is: the name itself)."""
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return
+    if not (stat.S_ISREG(st.st_mode) or stat.S_ISLNK(st.st_mode)):
+        raise OutputPathError("exists and is not a regular file; mer does not replace it", path=path,
+                              fix="move it away or choose another output name")  # fmt: skip
+
+
+def atomic_write(path: str | Path, data: bytes | str, *, below: str | Path | None = None) -> Path:
+    """Write ``data`` (bytes, or text as UTF-8 with ``\\n`` newlines) to ``path`` atomically.
+
+    The temporary file is created exclusively without following links; the rename replaces the
+    name ``path`` itself (a symbolic link there is replaced, its target never written). ``below``:
+    the folder the user named; the folders between it and ``path`` must be real folders
+    (:func:`real_folder`). A full disk raises :class:`~mer_data.base.errors.DiskFullError`.
+    """
+    path = Path(path)
+    payload = data.encode("utf-8") if isinstance(data, str) else data
+    with disk_full_as_error(path, len(payload)):
+        if below is not None:
+            real_folder(path.parent, below)
+        else:
+            path.parent.mkdir(parents=True, exist_ok=True)
+        _refuse_non_file(path)
+        fd, tmp = _new_temp(path)
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                fh.write(payload)
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
     return path
+
+
+def reserve_space(fd: int, nbytes: int, path: str | Path) -> bool:
+    """Claim ``nbytes`` of disk beyond the end of the open file ``fd`` without changing its size
+    (Linux ``fallocate(FALLOC_FL_KEEP_SIZE)``), so that writes within them cannot fail with ``ENOSPC``.
+
+    Raises :class:`DiskFullError` (naming ``path``) when the room is not there. Where the file system
+    cannot reserve, the free space is checked instead (False is returned: not a guarantee).
+    Unused room is given back by :func:`release_reserve`.
+    """
+    nbytes = max(int(nbytes), 1)
+    try:
+        fn = ctypes.CDLL(None, use_errno=True).fallocate
+        fn.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_longlong, ctypes.c_longlong]
+    except (AttributeError, OSError):
+        fn = None
+    if fn is not None:
+        if fn(fd, 1, os.fstat(fd).st_size, nbytes) == 0:  # 1: FALLOC_FL_KEEP_SIZE
+            return True
+        err = ctypes.get_errno()
+        if err in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
+            raise disk_full(path, nbytes)
+        if err not in (errno.EOPNOTSUPP, errno.ENOTSUP, errno.ENOSYS, errno.EINVAL):
+            raise OSError(err, os.strerror(err), str(path))
+    free = free_bytes(Path(path).parent)
+    if free is not None and free < nbytes:
+        raise disk_full(path, nbytes)
+    return False
+
+
+def release_reserve(fd: int) -> None:
+    """Give back the room :func:`reserve_space` claimed and the writes did not use (a truncation to
+    the file's own size frees the blocks past its end)."""
+    os.ftruncate(fd, os.fstat(fd).st_size)
 
 
 _RENAME_EXCHANGE = 2
@@ -144,19 +327,23 @@ def atomic_dir(final: str | Path, write: Callable[[Path], None], *, replace: boo
     the time the new folder is complete: the check and the rename are one atomic step.
     """
     final = Path(final)
-    final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{final.name}~{owner_tag()}~", dir=final.parent))
-    try:
-        write(tmp)
-        _chmod_like_open(tmp, folder=True)
-        for f in tmp.iterdir():
-            if f.is_file():
-                with open(f, "rb") as fh:
-                    os.fsync(fh.fileno())
-        _swap_in(tmp, final, replace)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+    with disk_full_as_error(final):
+        final.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{final.name}~{owner_tag()}~", dir=final.parent))
+        try:
+            write(tmp)
+            _chmod_like_open(tmp, folder=True)
+            for f in tmp.iterdir():
+                if f.is_file() and not f.is_symlink():
+                    fd = os.open(f, os.O_RDONLY | _NOFOLLOW | _CLOEXEC)
+                    try:
+                        os.fsync(fd)
+                    finally:
+                        os.close(fd)
+            _swap_in(tmp, final, replace)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
     return final
 
 

@@ -16,6 +16,8 @@ line prints ``str(error)`` and exits non-zero; library callers can catch the cla
     │   └── RobotExistsError
     ├── MotionFormatError           motion files (CSV) that do not match the robot
     ├── OutputError                 a computed output that is not finite: refused, never written
+    ├── OutputPathError             an output name mer will not write through (a link, not a regular file)
+    ├── DiskFullError               no space left for an output: the path and the space it needs
     ├── SplitError                  a train/eval split that does not fit the clips
     ├── ShardError                  training shards
     │   ├── ShardFormatError        not a shard, a damaged one, or an unsupported format version
@@ -48,6 +50,8 @@ __all__ = [
     "RobotExistsError",
     "MotionFormatError",
     "OutputError",
+    "OutputPathError",
+    "DiskFullError",
     "ConfigError",
     "CheckpointError",
     "UnseenRobotError",
@@ -155,6 +159,16 @@ class MotionFormatError(MerError):
 
 class OutputError(MerError):
     """A computed output (motion, shard, skeleton) with NaN or infinite values; nothing is written."""
+
+
+class OutputPathError(MerError):
+    """An output path mer will not write through: a symbolic link (or a folder that is one) where mer
+    chooses the name, or something that is not a regular file or folder."""
+
+
+class DiskFullError(MerError):
+    """The file system has no room for an output (ENOSPC, or the quota): one line naming the path,
+    the space the write needs and the space free; nothing is left under the final name."""
 
 
 class ConfigError(MerError):

@@ -62,12 +62,20 @@ LIMITS: dict[str, Limit] = {
         Limit("MER_MAX_BVH_JOINTS", 1_000, "joints", "number of joints (and End Sites) in a BVH hierarchy"),
         Limit("MER_MAX_BVH_FRAMES", 2_000_000, "frames", "number of frames of a BVH motion"),
         Limit("MER_MAX_SHARD_ROWS", 10_000_000, "rows", "declared number of rows (windows) of a shard or teacher file"),
-        Limit("MER_MAX_HDF5_ATTR_BYTES", 64 * 2**20, "bytes", "size of one HDF5 attribute (shard metadata)"),
+        Limit("MER_MAX_HDF5_ATTR_BYTES", 16 * 2**20, "bytes", "size of one HDF5 attribute (shard metadata)"),
         Limit("MER_MAX_HDF5_CHUNK_BYTES", 16 * 2**20, "bytes", "decompressed size of one HDF5 chunk"),
         Limit("MER_MAX_HDF5_READ_BYTES", 512 * 2**20, "bytes", "decompressed bytes of one read from an HDF5 dataset"),
+        Limit("MER_MAX_HDF5_READ_CHUNKS", 200_000, "chunks", "HDF5 chunks one read touches (a whole small column)"),
+        Limit("MER_MAX_HDF5_DATASET_BYTES", 2**40, "bytes", "declared size of an HDF5 dataset (the product of its shape)"),
         Limit("MER_MAX_MCAP_CHUNK_BYTES", 64 * 2**20, "bytes", "decompressed size of one MCAP chunk"),
         Limit("MER_MAX_MCAP_BYTES", 2 * 2**30, "bytes", "decompressed size of all the chunks of an MCAP shard"),
         Limit("MER_MAX_MCAP_RECORDS", 10_000_000, "records", "number of records (messages included) of an MCAP shard"),
+        Limit("MER_MAX_SIDECAR_BYTES", 64 * 2**20, "bytes", "size of a shard folder's mer_meta.json"),
+        Limit("MER_MAX_DATASET_CARD_BYTES", 16 * 2**20, "bytes", "size of a dataset card (README.md) downloaded with shards"),
+        Limit("MER_MAX_HUB_FILE_BYTES", 64 * 2**30, "bytes", "size of one file downloaded from the Hub (shards)"),
+        Limit("MER_MAX_HUB_DOWNLOAD_BYTES", 1024 * 2**30, "bytes", "size of all the files of one Hub download"),
+        Limit("MER_MAX_HUB_FILES", 1_000_000, "entries", "entries of a Hub repository's file listing"),
+        Limit("MER_MAX_HUB_JSON_BYTES", 64 * 2**20, "bytes", "size of one JSON answer of a Hub server (a listing)"),
     )
 }
 

@@ -13,7 +13,7 @@ import os
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
-from .atomic import owner_alive, owner_tag
+from .atomic import disk_full_as_error, owner_alive, owner_tag
 from .errors import MerError
 
 __all__ = ["hold_locks"]
@@ -30,7 +30,8 @@ def _owner(lock: Path) -> tuple[str, int] | None:
 def _take(lock: Path, error: type[MerError], what: str) -> None:
     for _ in range(3):
         try:
-            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            with disk_full_as_error(lock):  # O_EXCL: never through a link planted under the name
+                fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY | getattr(os, "O_NOFOLLOW", 0), 0o644)
         except FileExistsError:
             owner = _owner(lock)
             try:
@@ -46,8 +47,12 @@ def _take(lock: Path, error: type[MerError], what: str) -> None:
                 path=lock.parent,
                 fix=f"wait for it to finish, or write elsewhere; if no such process runs, delete {lock}",
             ) from None
-        with os.fdopen(fd, "w") as fh:
-            fh.write(owner_tag() + "\n")
+        try:
+            with disk_full_as_error(lock), os.fdopen(fd, "w") as fh:
+                fh.write(owner_tag() + "\n")
+        except BaseException:
+            lock.unlink(missing_ok=True)
+            raise
         return
     raise error(f"could not take the lock {lock}", path=lock.parent, fix="try again")
 

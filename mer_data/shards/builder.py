@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import multiprocessing
 import os
 import shutil
@@ -25,9 +26,10 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Callable, Iterator
 
+import numpy as np
 import torch
 
-from mer_data.base.atomic import atomic_write
+from mer_data.base.atomic import atomic_write, disk_full_as_error, real_folder, release_reserve, reserve_space
 from mer_data.base.errors import MerError, ShardBuildError, ShardFormatError
 from mer_data.base.locks import hold_locks
 from mer_data.skeleton import Skeleton
@@ -40,7 +42,7 @@ from .mcap_io import McapShardWriter
 from .plan import Part, check_out, clean_temp, part_key, plan_build, temp_name
 from .reader import open_shard
 from .report import BuildReport
-from .schema import ShardMeta
+from .schema import BIG_COLUMNS, COLUMNS, ShardMeta
 from .sidecar import write_sidecar
 from .synthetic_source import source_sha256, source_size
 
@@ -73,38 +75,65 @@ def _run(ctx: BuildContext, tasks: list[ClipTask], workers: int) -> Iterator[Cli
         yield from pool.imap_unordered(_work, tasks)
 
 
-def _fsync(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
+def _fsync(path: Path, *, release: bool = False) -> None:
+    """fsync ``path`` (never through a link); ``release``: first give back unused reserved room."""
+    fd = os.open(path, (os.O_RDWR if release else os.O_RDONLY) | getattr(os, "O_NOFOLLOW", 0))
     try:
+        if release:
+            release_reserve(fd)
         os.fsync(fd)
     finally:
         os.close(fd)
 
 
+#: bytes per row of the string columns (robot, clip, source sha256) in an HDF5 file, generously
+_STRING_ROW_BYTES = 256
+
+
+def _merge_bytes(part: Part, meta: ShardMeta, results: dict[str, ClipResult]) -> int:
+    """An upper bound of the size of the merged file: its pieces (the big columns' chunks are copied
+    verbatim; each piece also holds all the metadata the merged file holds once), the small columns
+    uncompressed, and 256 KiB of slack."""
+    pieces = [Path(results[c].piece) for c in part.clips if results[c].piece is not None]
+    rows = sum(int(results[c].record.get("windows", 0)) for c in part.clips if results[c].piece is not None)
+    shapes = meta.shapes()
+    row = sum(_STRING_ROW_BYTES if d == "str" else math.prod(shapes[c]) * np.dtype(d).itemsize
+              for c, d in COLUMNS.items() if c not in BIG_COLUMNS)  # fmt: skip
+    return sum(p.stat().st_size for p in pieces) + rows * row + (256 << 10)
+
+
 def _merge(part: Part, meta: ShardMeta, results: dict[str, ClipResult], cfg: BuildConfig) -> None:
-    """The pieces of ``part`` -> its shard file, atomically."""
+    """The pieces of ``part`` -> its shard file, atomically.
+
+    HDF5 does not survive a full disk (h5py segfaults closing the file): the merged file's room is
+    claimed before HDF5 writes a byte (:func:`~mer_data.base.atomic.reserve_space`), so a full disk
+    is a ``DiskFullError`` naming the shard and the bytes it needs, and nothing is left behind."""
     tmp = temp_name(part.final)
-    if cfg.format == "hdf5":
-        writer: Hdf5ShardWriter | McapShardWriter = Hdf5ShardWriter(tmp, meta, compression=cfg.compression)
-    else:
-        writer = McapShardWriter(tmp, meta, preview=cfg.mcap_preview)
-    try:
-        for clip in part.clips:
-            piece = results[clip].piece
-            if piece is None:
-                continue
+    need = _merge_bytes(part, meta, results)
+    with disk_full_as_error(part.final, need):
+        if cfg.format == "hdf5":
+            writer: Hdf5ShardWriter | McapShardWriter = Hdf5ShardWriter(tmp, meta, compression=cfg.compression)
+        else:
+            writer = McapShardWriter(tmp, meta, preview=cfg.mcap_preview)
+        try:
             if isinstance(writer, Hdf5ShardWriter):
-                writer.append_piece(piece)
-            else:
-                src = Hdf5Shard(piece)
-                writer.append(src.rows(0, src.num_rows))
-                src.close()
-        writer.close(meta)
-        _fsync(tmp)
-        os.replace(tmp, part.final)
-    except BaseException:
-        writer.abort()
-        raise
+                reserve_space(writer.file.id.get_vfd_handle(), need, part.final)
+            for clip in part.clips:
+                piece = results[clip].piece
+                if piece is None:
+                    continue
+                if isinstance(writer, Hdf5ShardWriter):
+                    writer.append_piece(piece)
+                else:
+                    src = Hdf5Shard(piece)
+                    writer.append(src.rows(0, src.num_rows))
+                    src.close()
+            writer.close(meta)
+            _fsync(tmp, release=isinstance(writer, Hdf5ShardWriter))
+            os.replace(tmp, part.final)
+        except BaseException:
+            writer.abort()
+            raise
     shutil.rmtree(part.final.parent / ".partial" / part.name, ignore_errors=True)
 
 
@@ -160,6 +189,8 @@ def _build(cfg: BuildConfig, out: Path, plan, t0: float, *, workers: int, shard_
            progress: Progress | None) -> BuildReport:  # fmt: skip
     """The build proper, with the locks of its files held (see :func:`build_shards`)."""
     check_out(out, plan.build_id, {p.final.name for p in plan.parts.values()})
+    for p in plan.parts.values():  # a planted link would send pieces (and their clean-up) elsewhere
+        real_folder(out / ".partial" / p.name, out)
     clean_temp(out, list(plan.parts.values()))
 
     report = BuildReport(out=str(out), build_id=plan.build_id, config=plan.config_json)

@@ -1,8 +1,8 @@
 """One clip -> one *piece*: read, check, resample, window, features, augmentation draws.
 
 This is what the build's worker processes run. A piece is an HDF5 file with the shard layout holding
-the windows of one clip; it is written to a temporary name and renamed, and it records the key of
-its inputs (build id, robot, clip, source sha256), so an interrupted build reuses the pieces it
+the windows of one clip; it is built in memory and written to a temporary name and renamed (a full
+disk is a ``DiskFullError``, never a half-written piece), and it records the key of its inputs (build id, robot, clip, source sha256), so an interrupted build reuses the pieces it
 finished. The builder then merges the pieces of a shard into the shard file.
 """
 
@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import hashlib
 import logging
-import os
-import uuid
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -129,8 +127,8 @@ def _augmentation(ctx: BuildContext, task: ClipTask, n: int) -> dict[str, np.nda
 
 
 def _reuse(piece: Path, key: str) -> ShardMeta | None:
-    if not piece.is_file():
-        return None
+    if piece.is_symlink() or not piece.is_file():
+        return None  # a link is never read, and replaced (the name itself) when the piece is written
     try:
         meta = Hdf5Shard(piece).meta
     except MerError:
@@ -210,14 +208,12 @@ def process_clip(ctx: BuildContext, task: ClipTask) -> ClipResult:
         **_augmentation(ctx, task, n),
     }  # fmt: skip
     meta = replace(ctx.metas[task.part], part_key=key, sources=[record])
-    piece.parent.mkdir(parents=True, exist_ok=True)
-    tmp = piece.with_name(f"{piece.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}")
-    writer = Hdf5ShardWriter(tmp, meta, compression=cfg.compression)
+    # built in memory, then one checked, atomic write below the build's folder (OUT/.partial/<file>/)
+    writer = Hdf5ShardWriter(piece, meta, compression=cfg.compression, in_memory=True, below=piece.parents[2])
     try:
         writer.append(rows)
         writer.close(meta)
     except BaseException:
         writer.abort()
         raise
-    os.replace(tmp, piece)
     return ClipResult(task, record, str(piece))

@@ -13,17 +13,24 @@ Layout choices:
   file format (``libver="v108"``).
 * Per-clip *pieces* written by the build workers have the same layout; they are merged by copying
   the compressed per-window chunks verbatim (``read_direct_chunk``/``write_direct_chunk``).
+* A full disk: HDF5 does not survive ``ENOSPC`` (h5py segfaults closing the file), so a piece is
+  built in memory (the core driver) and written to disk in one checked write
+  (:func:`~mer_data.base.atomic.atomic_write`); a shard file written to disk directly first claims
+  its room (:func:`~mer_data.base.atomic.reserve_space`, by the builder). Either way a full disk is
+  a :class:`~mer_data.base.errors.DiskFullError`, and nothing is left under a final name.
 """
 
 from __future__ import annotations
 
 import logging
+import uuid
 from collections.abc import Mapping
 from pathlib import Path
 
 import h5py
 import numpy as np
 
+from mer_data.base.atomic import atomic_write
 from mer_data.base.errors import ShardFormatError
 
 from .h5safe import attr, dataset, open_h5, read
@@ -49,14 +56,24 @@ def _filters(compression: str) -> dict:
 
 
 class Hdf5ShardWriter:
-    """Write a shard (or a piece) row by row. Call :meth:`close` with the final metadata."""
+    """Write a shard (or a piece) row by row. Call :meth:`close` with the final metadata.
 
-    def __init__(self, path: str | Path, meta: ShardMeta, *, compression: str = "lzf") -> None:
+    ``in_memory``: build the file in memory and write it to ``path`` atomically on :meth:`close`
+    (``below``: the folder the user named, see :func:`~mer_data.base.atomic.atomic_write`); else it is
+    written at ``path`` as it grows (created exclusively: never through a planted link).
+    """
+
+    def __init__(self, path: str | Path, meta: ShardMeta, *, compression: str = "lzf", in_memory: bool = False,
+                 below: str | Path | None = None) -> None:  # fmt: skip
         self.path = Path(path)
         self.meta = meta
         self.shapes = meta.shapes()
-        # "x": created exclusively, so a symbolic link or a file planted under the name is never written through
-        self.file = h5py.File(self.path, "x", libver=LIBVER)
+        self.in_memory, self.below = in_memory, below
+        if in_memory:  # nothing touches the disk before close(): ENOSPC surfaces in one checked write
+            self.file = h5py.File(f"mer-{uuid.uuid4().hex}.h5", "w", driver="core", backing_store=False, libver=LIBVER)
+        else:
+            # "x": created exclusively, so a symbolic link or a file planted under the name is never written through
+            self.file = h5py.File(self.path, "x", libver=LIBVER)
         self.rows = 0
         filt = _filters(compression)
         for name, dtype in COLUMNS.items():
@@ -124,13 +141,19 @@ class Hdf5ShardWriter:
         for k, v in meta.to_attrs().items():
             self.file.attrs[k] = v
         self.file.flush()
+        if not self.in_memory:
+            self.file.close()
+            return
+        image = self.file.id.get_file_image()
         self.file.close()
+        atomic_write(self.path, image, below=self.below)
 
     def abort(self) -> None:
         try:
             self.file.close()
         finally:
-            self.path.unlink(missing_ok=True)
+            if not self.in_memory:
+                self.path.unlink(missing_ok=True)
 
 
 class ProcessLocalH5:
@@ -198,9 +221,24 @@ class _LazyAttrs(Mapping):
         return 0
 
 
+def check_skeletons(meta: ShardMeta, path: Path) -> ShardMeta:
+    """``meta`` if every skeleton it stores builds (a flipped byte in one is a ``ShardFormatError``
+    naming it, not a ``TypeError`` later)."""
+    from mer_data.skeleton import Skeleton
+
+    for name, text in meta.skeletons.items():
+        try:
+            Skeleton.from_json(text)
+        except (TypeError, ValueError, KeyError, IndexError, AttributeError, RecursionError) as exc:
+            raise ShardFormatError(f"the skeleton {name!r} in the metadata is damaged ({type(exc).__name__}: {str(exc)[:200]})",
+                                   path=path, element=f"skeleton:{name}", fix="rebuild the shard with mer") from None  # fmt: skip
+    return meta
+
+
 def read_meta(f: h5py.File, path: Path) -> ShardMeta:
-    """The :class:`ShardMeta` of an open shard or piece (only the attributes it names are read)."""
-    return ShardMeta.from_attrs(_LazyAttrs(f, path), path)
+    """The :class:`ShardMeta` of an open shard or piece (only the attributes it names are read; its
+    skeletons checked)."""
+    return check_skeletons(ShardMeta.from_attrs(_LazyAttrs(f, path), path), path)
 
 
 class Hdf5Shard(ProcessLocalH5):

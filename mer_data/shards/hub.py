@@ -3,8 +3,11 @@
 A pushed shard set is a *dataset* repository holding the shard files, the dataset card
 (``README.md``, rendered from the shards' metadata) and ``mer_meta.json`` (:mod:`.sidecar`: the
 metadata that ``datasets.load_dataset("hdf5")`` does not read). Reading it back goes through the
-client's cache: ``snapshot_download(repo_type="dataset", allow_patterns=...)`` fetches only those
-files, and with ``HF_HUB_OFFLINE=1`` the cached snapshot is used without any network call.
+client's cache, in its layout, but not through its downloader: a repository may come from anyone,
+so :func:`mer_data.base.hub_files.checked_snapshot` checks what the server says (commit id, file
+names, sizes, ETags) before it becomes a path, caps every file and verifies its hash before it
+enters the cache. Only those files are fetched, and with ``HF_HUB_OFFLINE=1`` the cached snapshot is
+used without any network call.
 
 Configuration is huggingface_hub's: ``HF_ENDPOINT``, ``HF_TOKEN``, ``HF_HUB_CACHE``. A Hub-compatible
 server without Xet storage needs ``HF_HUB_DISABLE_XET=1`` to upload.
@@ -45,26 +48,28 @@ def parse_hf_url(url: str) -> tuple[str, str | None]:
     return repo, revision or None
 
 
-def download_shards(url: str) -> Path:
-    """The local snapshot folder of ``hf://datasets/OWNER/NAME[@REV]`` (shards, card, side file only)."""
-    repo, revision = parse_hf_url(url)
-    from huggingface_hub import snapshot_download
-    from huggingface_hub.errors import HfHubHTTPError, LocalEntryNotFoundError, RepositoryNotFoundError, RevisionNotFoundError
+def _size_limit(name: str) -> str:
+    """The limit on a downloaded file's size: the side file and the card are read whole."""
+    if name == META_FILE:
+        return "MER_MAX_SIDECAR_BYTES"
+    return "MER_MAX_DATASET_CARD_BYTES" if name == "README.md" else "MER_MAX_HUB_FILE_BYTES"
 
-    try:
-        path = snapshot_download(repo_id=repo, repo_type="dataset", revision=revision, allow_patterns=ALLOW_PATTERNS)
-    except RevisionNotFoundError:
-        raise ShardError(f"the dataset {repo!r} has no revision {revision!r}", fix="check the @REVISION part of the URL") from None
-    except RepositoryNotFoundError:
-        raise ShardError(f"no dataset {repo!r} on the Hub (or it is private and no token was given)",
-                         fix="check the id, or log in with `hf auth login` (HF_TOKEN)") from None
-    except LocalEntryNotFoundError as exc:
-        raise ShardError(f"the dataset {repo!r} is not in the local cache and cannot be downloaded ({str(exc).splitlines()[0]})",
-                         fix="connect to the network (and unset HF_HUB_OFFLINE) once to download it") from None
-    except HfHubHTTPError as exc:
-        raise ShardError(f"downloading {repo!r} failed: {exc}", fix="retry; check HF_ENDPOINT and HF_TOKEN") from None
+
+def download_shards(url: str) -> Path:
+    """The local snapshot folder of ``hf://datasets/OWNER/NAME[@REV]`` (shards, card, side file only).
+
+    Contained (:func:`mer_data.base.hub_files.checked_snapshot`): the server's commit id, file names,
+    sizes and ETags are checked before they become paths; each file is capped (``mer_meta.json``:
+    ``MER_MAX_SIDECAR_BYTES``, ``README.md``: ``MER_MAX_DATASET_CARD_BYTES``, shards:
+    ``MER_MAX_HUB_FILE_BYTES``) and hashed into a private temporary file before it enters the cache.
+    """
+    from mer_data.base.hub_files import checked_snapshot
+
+    repo, revision = parse_hf_url(url)
+    path = checked_snapshot(repo, revision, repo_type="dataset", patterns=ALLOW_PATTERNS, size_limit=_size_limit,
+                            error=ShardError)  # fmt: skip
     log.info("using %s from %s", url, path)
-    return Path(path)
+    return path
 
 
 def resolve_hub_paths(paths: PathsLike) -> PathsLike:

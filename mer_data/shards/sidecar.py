@@ -20,6 +20,7 @@ them). :func:`read_sidecar` gives a :class:`Sidecar` that resolves a ``load_data
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Mapping
@@ -97,7 +98,7 @@ class Sidecar:
                 kw = {k: v for k, v in entry.items() if k != "skeleton_names"}
                 kw["skeletons"] = {n: self.skeleton_json[n] for n in entry["skeleton_names"]}
                 self.shards[name] = ShardMeta(**kw)
-        except (KeyError, TypeError, AttributeError) as exc:
+        except (KeyError, TypeError, AttributeError, ValueError) as exc:
             raise ShardFormatError(f"damaged side file ({type(exc).__name__}: {exc})", path=path,
                                    fix="rewrite it from the shards (`mer shards card DIR`) or download it again") from None
         self._skels: dict[str, Skeleton] = {}
@@ -146,14 +147,18 @@ class Sidecar:
 
 
 def read_sidecar(path: str | Path) -> Sidecar:
-    """Read ``mer_meta.json`` (a file, or a folder holding one)."""
+    """Read ``mer_meta.json`` (a file, or a folder holding one): a regular file of at most
+    ``MER_MAX_SIDECAR_BYTES``, JSON of bounded depth."""
+    from mer_data.base.safe_io import decode_utf8, read_regular_file
+
     p = Path(path)
     if p.is_dir():
         p = p / META_FILE
+    if not os.path.lexists(p):
+        raise ShardFormatError(f"no {META_FILE} here", path=p, fix="write it with `mer shards card DIR` (or rebuild the shards)")
+    raw = read_regular_file(p, ShardFormatError, "MER_MAX_SIDECAR_BYTES")
     try:
-        data = json.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ShardFormatError(f"no {META_FILE} here", path=p, fix="write it with `mer shards card DIR` (or rebuild the shards)") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ShardFormatError(f"cannot read the side file: {exc}", path=p) from None
+        data = json.loads(decode_utf8(raw, p, ShardFormatError))
+    except (ValueError, RecursionError) as exc:
+        raise ShardFormatError(f"cannot read the side file: {type(exc).__name__}: {str(exc)[:200]}", path=p) from None
     return Sidecar(data, p)

@@ -35,8 +35,9 @@ def clip_name(path: Path) -> str | None:
 def resolve_input(spec: str, robots: Sequence[str]) -> Path:
     """A local folder for ``spec``: the folder itself, or the snapshot of ``hf://REPO_ID[@REVISION]``.
 
-    Only the robots' ``*.csv``/``*.csv.gz`` files are downloaded. ``HF_HUB_OFFLINE=1`` is honoured
-    (the cached snapshot is used, and it is an error if there is none).
+    Only the robots' ``*.csv``/``*.csv.gz`` files are downloaded, each checked and capped at
+    ``MER_MAX_MOTION_BYTES`` (:func:`mer_data.base.hub_files.checked_snapshot`). ``HF_HUB_OFFLINE=1``
+    is honoured (the cached snapshot is used, and it is an error if there is none).
     """
     if not spec.startswith(HF_PREFIX):
         root = Path(spec).expanduser()
@@ -50,31 +51,13 @@ def resolve_input(spec: str, robots: Sequence[str]) -> Path:
     repo, _, revision = spec[len(HF_PREFIX) :].partition("@")
     if repo.count("/") != 1 or not all(repo.split("/")):
         raise ShardBuildError(f"cannot read the Hub dataset id {repo!r}", fix=f"use hf://OWNER/NAME, e.g. hf://{LAFAN1_REPO}")
-    from huggingface_hub import snapshot_download
-    from huggingface_hub.errors import (
-        HfHubHTTPError,
-        LocalEntryNotFoundError,
-        RepositoryNotFoundError,
-        RevisionNotFoundError,
-    )
+    from mer_data.base.hub_files import checked_snapshot
 
     patterns = [f"{r}/*{s}" for r in robots for s in motion_suffixes()]
-    try:
-        path = snapshot_download(repo_id=repo, repo_type="dataset", revision=revision or None, allow_patterns=patterns)
-    except RevisionNotFoundError:
-        raise ShardBuildError(f"the dataset {repo!r} has no revision {revision!r}", fix="check the @REVISION part") from None
-    except RepositoryNotFoundError:
-        raise ShardBuildError(
-            f"no dataset {repo!r} on the Hub (or it is private and no token was given)",
-            fix="check the id, or log in with `hf auth login`",
-        ) from None
-    except LocalEntryNotFoundError as exc:
-        raise ShardBuildError(
-            f"the dataset {repo!r} is not in the local cache and cannot be downloaded ({str(exc).splitlines()[0]})",
-            fix="connect to the network (and unset HF_HUB_OFFLINE) once to download it, or pass a local folder",
-        ) from None
-    except HfHubHTTPError as exc:
-        raise ShardBuildError(f"downloading {repo!r} failed: {exc}") from None
+    path = checked_snapshot(repo, revision or None, repo_type="dataset", patterns=patterns,
+                            size_limit=lambda name: "MER_MAX_MOTION_BYTES", error=ShardBuildError,
+                            offline_fix="connect to the network (and unset HF_HUB_OFFLINE) once to download it, or pass "
+                            "a local folder")  # fmt: skip
     log.info("using %s from %s", spec, path)
     return Path(path)
 

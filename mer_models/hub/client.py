@@ -11,7 +11,8 @@ cached at a pinned commit is likewise never re-fetched or re-validated over the 
 Downloads (:func:`fetch_file`) do not go through ``hf_hub_download``: the client turns the server's
 ETag into a cache path unchecked (``blobs/<etag>``; ``../..`` in it writes outside the cache), so mer
 asks for the metadata, checks it, downloads into a private temporary file, verifies the bytes and
-only then moves them into the cache, in the client's own layout.
+only then moves them into the cache, in the client's own layout (:mod:`mer_data.base.hub_files`,
+which shard datasets, ``hf://datasets/...``, share).
 """
 
 from __future__ import annotations
@@ -19,16 +20,14 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import errno
-import hashlib
 import logging
 import os
 import re
-import tempfile
 from pathlib import Path
 from typing import Any, Iterator
 
-from mer_data.base.atomic import atomic_write, owner_tag
-from mer_data.base.errors import ChecksumError, ModelNotAvailableError, ModelZooError
+from mer_data.base.errors import ChecksumError, DiskFullError, ModelNotAvailableError, ModelZooError
+from mer_data.base.hub_files import download_blob, install_blob
 from mer_data.base.limits import limit, too_big
 
 from .names import is_commit, validate_filename, validate_repo_id, validate_revision
@@ -123,52 +122,13 @@ def _refuse(what: str, filename: str, message: str, fix: str = "check HF_ENDPOIN
 
 
 def _download_blob(url: str, dest_dir: Path, etag: str, size: int, headers: dict[str, str], what: str, filename: str) -> Path:
-    """Stream ``url`` into a private temporary file in ``dest_dir``: at most ``size`` bytes, hashed on the
-    fly and checked against ``etag`` (sha256 for LFS files, the git blob sha1 otherwise). Returns it."""
-    from huggingface_hub.utils import get_session, hf_raise_for_status
-
-    h = hashlib.sha256() if len(etag) == 64 else hashlib.sha1(f"blob {size}\0".encode())
-    fd, tmp = tempfile.mkstemp(prefix=f".tmp-{etag}~{owner_tag()}~", dir=dest_dir)
-    got = 0
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            with get_session().stream("GET", url, headers=headers, follow_redirects=True, timeout=60) as r:
-                hf_raise_for_status(r)
-                for chunk in r.iter_bytes(1 << 20):
-                    got += len(chunk)
-                    if got > size:
-                        raise ChecksumError(f"{what}: the server sent more than the {size:,} bytes it announced for {filename}",
-                                            element=filename, fix="check HF_ENDPOINT; nothing was kept")  # fmt: skip
-                    h.update(chunk)
-                    fh.write(chunk)
-            fh.flush()
-            os.fsync(fh.fileno())
-        if got != size:
-            raise ChecksumError(f"{what}: the download of {filename} was cut short ({got:,} of {size:,} bytes)",
-                                element=filename, fix="run the command again; nothing was kept")  # fmt: skip
-        if h.hexdigest() != etag:
-            raise ChecksumError(f"{what}: {filename} hashes to {h.hexdigest()}, but the Hub served it as {etag}; the file "
-                                "was not used and nothing was kept", element=filename,
-                                fix="check HF_ENDPOINT, then run the command again")  # fmt: skip
-        os.chmod(tmp, 0o644)
-        return Path(tmp)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """Stream ``url`` into a private temporary file in ``dest_dir`` (capped, hashed, checked against ``etag``)."""
+    return download_blob(url, dest_dir, etag, size, headers, error=ChecksumError, what=what, filename=filename)
 
 
 def _install(storage: Path, tmp_blob: Path, etag: str, commit: str, filename: str, revision: str) -> Path:
     """Move a verified blob into the cache (huggingface_hub's layout) and link its snapshot entry."""
-    blob = storage / "blobs" / etag
-    os.replace(tmp_blob, blob)
-    pointer = storage / "snapshots" / commit / filename
-    pointer.parent.mkdir(parents=True, exist_ok=True)
-    link = pointer.parent / f".tmp-{pointer.name}~{owner_tag()}~{os.urandom(4).hex()}"
-    os.symlink(os.path.relpath(blob, pointer.parent), link)
-    os.replace(link, pointer)  # replaces the name, never what a link there points to
-    if revision != commit:
-        atomic_write(storage / "refs" / revision, commit)
-    return pointer
+    return install_blob(storage, tmp_blob, etag, commit, filename, revision)
 
 
 def fetch_file(repo_id: str, filename: str, revision: str, *, what: str) -> Path:
@@ -245,6 +205,8 @@ def fetch_file(repo_id: str, filename: str, revision: str, *, what: str) -> Path
             element=filename,
             fix=f"check the network (and HF_ENDPOINT), then run `mer zoo download {what}`",
         ) from None
+    except DiskFullError:
+        raise
     except OSError as exc:
         if exc.errno == errno.ENOSPC:
             raise ModelZooError(f"{what}: the disk is full: cannot store {filename} ({size or 0:,} bytes) in {cache_dir()}",

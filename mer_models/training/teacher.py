@@ -13,6 +13,9 @@ evaluate --methods optimize``) and stored in the shard's teacher file
 * **Sharded**: ``shard_index``/``num_shards`` take every N-th shard file, so N jobs cover a set once.
 * **Consistent**: the solver configuration is stored; a complete file with another configuration
   (or for another build of the shard) is refused unless ``force``.
+* **Contained**: a ``teacher/`` folder that is a symbolic link, and a teacher or ``.partial`` name that
+  is one (or not a regular file), are refused before anything is solved; the file's room is claimed
+  before HDF5 writes into it, so a full disk is one ``DiskFullError`` line (HDF5 would crash).
 """
 
 from __future__ import annotations
@@ -30,7 +33,8 @@ from typing import Callable, Sequence
 import h5py
 import numpy as np
 
-from mer_data.base.errors import MerError, ShardFormatError
+from mer_data.base.atomic import disk_full_as_error, real_folder, release_reserve, reserve_space
+from mer_data.base.errors import MerError, OutputPathError, ShardFormatError
 from mer_data.base.locks import hold_locks
 from mer_data.kinematics.rotations import matrix_to_axis_angle
 from mer_data.kinematics.scaling import SCALING_VERSION
@@ -102,6 +106,13 @@ def _plain_file(path: Path) -> bool:
         raise MerError(f"is {kind}; mer never writes through it (that would write outside the teacher folder)",
                        path=path, fix="delete it (it is not a file mer wrote) and run again")  # fmt: skip
     return True
+
+
+def _teacher_bytes(meta, J: int) -> int:
+    """An upper bound of a complete teacher file's size: its arrays uncompressed, an index entry per
+    chunk and 1 MiB of metadata."""
+    R, S, T = meta.num_rows, meta.samples_per_row, meta.window
+    return R * S * T * (J + 6) * 4 + R * S * 5 + R * 3 * 64 + (1 << 20)
 
 
 def _same_file(f: h5py.File, path: Path) -> None:
@@ -211,6 +222,13 @@ def solve_shards(
     for fi in files:
         shard, meta = ds.paths[fi], ds.files[fi].meta
         final = teacher_path(shard, out)
+        if out is None:  # the folder mer chooses beside the shards: a real one, never a link elsewhere
+            real_folder(final.parent, shard.parent)
+        for name in (final, final.with_name(final.name + ".partial")):
+            if os.path.islink(name) or (os.path.lexists(name) and not os.path.isfile(name)):
+                raise OutputPathError("is a symbolic link or not a regular file; mer never writes through it (that would "
+                                      "write outside the teacher folder)", path=name,
+                                      fix="delete it (it is not a file mer wrote) and run again")  # fmt: skip
         S = meta.samples_per_row
         n = meta.num_rows * S
         if _check_complete(final, meta, solver, force):
@@ -229,7 +247,7 @@ def solve_shards(
             if progress:
                 progress(done_all, total, f"{shard.name} up to date")
             continue
-        final.parent.mkdir(parents=True, exist_ok=True)
+        final.parent.mkdir(parents=True, exist_ok=True)  # --out: the user's folder, taken as it is
         with hold_locks(final.parent, [final.name], MerError):
             records.append(_solve_file(ds, fi, final, solver, device, progress, done_all, total))
         done_all += n
@@ -274,7 +292,14 @@ def _solve_file(ds: ShardDataset, fi: int, final: Path, solver: SolverConfig, de
     S, T = meta.samples_per_row, meta.window
     J = meta.max_target_nodes
     partial = final.with_name(final.name + ".partial")
-    f = _open_partial(partial, meta, S, J, solver)
+    need = _teacher_bytes(meta, J)
+    with disk_full_as_error(final, need):
+        f = _open_partial(partial, meta, S, J, solver)
+        try:  # HDF5 cannot survive ENOSPC: claim the file's whole room before solving into it
+            reserve_space(f.id.get_vfd_handle(), need - os.path.getsize(partial), final)
+        except BaseException:
+            f.close()
+            raise
     try:
         solved = f["solved"][()]
         slots = ds.slot_targets(fi)  # (rows, S): target index of each slot
@@ -313,6 +338,12 @@ def _solve_file(ds: ShardDataset, fi: int, final: Path, solver: SolverConfig, de
         f.close()
     if os.path.islink(final) or (os.path.lexists(final) and not os.path.isfile(final)):
         raise MerError("is not a regular file; mer does not replace it", path=final, fix="delete it and run again")
+    fd = os.open(partial, os.O_RDWR | getattr(os, "O_NOFOLLOW", 0))
+    try:
+        release_reserve(fd)  # the room claimed and not used
+        os.fsync(fd)
+    finally:
+        os.close(fd)
     os.replace(partial, final)  # replaces the name itself, never what a link there points to
     rec = {"shard": str(ds.paths[fi]), "teacher": str(final), "samples": meta.num_rows * S, "frames": frames,
            "seconds": round(seconds, 3), "frames_per_s": frames / max(seconds, 1e-9),

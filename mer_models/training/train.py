@@ -34,7 +34,7 @@ from safetensors.torch import load_file
 from torch import nn
 from torch.utils.data import DataLoader, Dataset
 
-from mer_data.base.errors import CheckpointError, ConfigError
+from mer_data.base.errors import CheckpointError, ConfigError, MerError
 from mer_data.kinematics.rotations import axis_angle_to_matrix
 from mer_data.motion.samples import collate
 from mer_data.robots.registry import get_skeleton
@@ -386,7 +386,12 @@ def train(
         if rank == 0 and (step % run.train.log_every == 0 or step == steps):
             last["sec_per_step"] = (time.time() - t0) / max(1, step - start_step)
             out.mkdir(parents=True, exist_ok=True)
-            with open(logf, "a") as fh:
+            try:  # a planted link is refused, not followed
+                fd = os.open(logf, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW, 0o666)
+            except OSError as e:
+                raise MerError(f"cannot append to the training log: {e.strerror}", path=logf,
+                               fix="remove what is at that path (mer writes the log itself, never through a link)") from None
+            with os.fdopen(fd, "a") as fh:
                 fh.write(json.dumps(last) + "\n")
             log.info("step %d loss %.4f edm %.4f f_kin %.5f", step, last["loss"], last["edm"], last["f_total"])
             if progress is not None:
