@@ -26,11 +26,12 @@ the same thing and agree (checked; a mismatch is logged). The two methods do not
 same objective: mer's energy also has base/feet/hand orientation terms and a temporal smoothness
 prior (``mer_models/solver/ik.py``); mink tracks positions only, frame by frame.
 
-The command (2 threads: ``torch.set_num_threads`` and OMP/BLAS for the mink side)::
+The command (2 threads: ``torch.set_num_threads`` and OMP/BLAS for the mink side; OpenMP threads
+wait passively unless ``--omp-wait active``)::
 
     nice -n 5 .venv/bin/python tools/bench_retarget.py [--source g1] [--clip dance1_subject2] \\
         [--frames 1800] [--targets h1 atlas] [--mink-iters 2 5 10] [--repeat 2] [--threads 2] \\
-        [--json PATH]
+        [--omp-wait passive|active] [--json PATH]
 
 The clip is read from ``$MER_SHARED/data/lafan1/<source>/`` (default ``../shared``, i.e.
 ``/work/shared/data/lafan1``; ``--data-dir`` overrides). mink, mujoco and daqp are
@@ -66,6 +67,9 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--mink-solver", default="daqp", help="qpsolvers backend of mink (default daqp)")
     ap.add_argument("--repeat", type=int, default=2, help="timed runs per row; the best wall time is reported")
     ap.add_argument("--threads", type=int, default=2, help="torch.set_num_threads and OMP/BLAS threads")
+    ap.add_argument("--omp-wait", choices=["passive", "active"], default="passive",
+                    help="OMP_WAIT_POLICY (default passive, as mer's commands set it: spinning threads starve each other "
+                    "on a shared machine; mer_models.retarget.workers.passive_omp)")  # fmt: skip
     ap.add_argument("--dataset-clips", type=int, default=4,
                     help="also time a dataset of the first N clips x --targets: batched (mer retarget --input) "
                     "against one file at a time (retarget_file), same outputs; 0 skips it")  # fmt: skip
@@ -78,6 +82,7 @@ def _parser() -> argparse.ArgumentParser:
 _early, _ = _parser().parse_known_args()
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_var] = str(max(1, _early.threads))
+os.environ["OMP_WAIT_POLICY"] = _early.omp_wait.upper()
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
@@ -279,7 +284,7 @@ def main() -> None:
 
     load = (load0, os.getloadavg()[0])
     print(f"clip {path.name} (source {args.source}), {F} frames at {MODEL_FPS:g} Hz | targets {' '.join(args.targets)} | "
-          f"threads {torch.get_num_threads()} | best of {args.repeat} | "
+          f"threads {torch.get_num_threads()} (OMP_WAIT_POLICY {os.environ['OMP_WAIT_POLICY']}) | best of {args.repeat} | "
           + (f"mink {args.mink_solver}, posture cost = mer's w_norm/w_kp ({energy.w_norm:g}/{energy.w_kp:g})" if have_mink else "mink skipped")
           + f" | load average {load[0]:.2f} -> {load[1]:.2f} "
           f"on {os.cpu_count()} cores")  # fmt: skip
@@ -323,7 +328,7 @@ def bench_dataset(data_dir: Path, source: str, targets: list[str], n_clips: int,
                     retarget_file(f, source, t, out_csv=Path(tmp) / f"one{k}" / t / f.name, method="optimize")
             one = min(one, time.perf_counter() - t0)
             t0 = time.perf_counter()
-            retarget_dataset(str(inp.parent), source, targets, Path(tmp) / f"batched{k}")
+            retarget_dataset(str(inp.parent), source, targets, Path(tmp) / f"batched{k}", workers=torch.get_num_threads())  # processes = threads
             batched = min(batched, time.perf_counter() - t0)
     print(f"dataset: {len(files)} clips x {len(targets)} targets = {frames} frames | one file at a time "
           f"{one:.1f} s ({frames / one:.0f} frames/s) | batched across clips {batched:.1f} s ({frames / batched:.0f} frames/s) "

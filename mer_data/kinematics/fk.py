@@ -18,6 +18,7 @@ parent is always one level up), so the cost is ``depth`` batched steps, not ``J`
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -26,7 +27,7 @@ import torch
 
 from mer_data.skeleton import Skeleton
 
-from .fk_kernel import axis_matrices, fk_core, rodrigues
+from .fk_kernel import axis_matrices, broadcast_shapes, fk_core, rodrigues
 from .rotations import quat_to_matrix
 
 __all__ = [
@@ -149,9 +150,7 @@ def _forward_kinematics_mixed(q, base_pos, base_rot, offsets, axes, parents: tor
     B, J = parents.shape
     if q.shape[0] != B:
         raise ValueError(f"parents has {B} rows but q has batch size {q.shape[0]}")
-    batch = torch.broadcast_shapes(
-        q.shape[:-1], base_pos.shape[:-1], base_rot.shape[:-2], offsets.shape[:-2], axes.shape[:-2]
-    )
+    batch = broadcast_shapes(q.shape[:-1], base_pos.shape[:-1], base_rot.shape[:-2], offsets.shape[:-2], axes.shape[:-2])
     rows, inverse = torch.unique(parents.cpu(), dim=0, return_inverse=True)
     pos_parts, rot_parts, index_parts = [], [], []
     for g, row in enumerate(rows):
@@ -160,14 +159,31 @@ def _forward_kinematics_mixed(q, base_pos, base_rot, offsets, axes, parents: tor
         def pick(t: torch.Tensor, tail: int) -> torch.Tensor:
             return t.expand(batch + t.shape[t.dim() - tail :]).index_select(0, sel)
 
-        p, r = forward_kinematics(
-            pick(q, 1), pick(base_pos, 1), pick(base_rot, 2), pick(offsets, 2), pick(axes, 2), row.tolist()
-        )
+        off, ax = _shared(offsets, sel, B), _shared(axes, sel, B)
+        if off is None or ax is None:
+            off, ax = pick(offsets, 2), pick(axes, 2)
+        else:  # the dtype the per-sample products would have promoted to
+            dtype = functools.reduce(torch.promote_types, (q.dtype, base_pos.dtype, base_rot.dtype, off.dtype, ax.dtype))
+            off, ax = off.to(dtype), ax.to(dtype)
+        p, r = forward_kinematics(pick(q, 1), pick(base_pos, 1), pick(base_rot, 2), off, ax, row.tolist())
         pos_parts.append(p)
         rot_parts.append(r)
         index_parts.append(sel)
     back = torch.argsort(torch.cat(index_parts))
     return torch.cat(pos_parts).index_select(0, back), torch.cat(rot_parts).index_select(0, back)
+
+
+def _shared(t: torch.Tensor, sel: torch.Tensor, B: int) -> torch.Tensor | None:
+    """(J, 3) when the (..., J, 3) geometry ``t`` is the same for every selected sample and frame (a
+    batch of one robot: the kernel's shared-geometry path, one GEMM per level), else None; never
+    for geometry that requires gradients (each sample's own gradient)."""
+    if t.requires_grad:
+        return None
+    part = t.index_select(0, sel) if t.dim() > 2 and t.shape[0] == B else t
+    flat = part.reshape(-1, *t.shape[-2:])
+    if flat.shape[0] > 1 and not bool((flat == flat[:1]).all()):
+        return None
+    return flat[0]
 
 
 def fk_skeleton(

@@ -16,7 +16,13 @@ from functools import lru_cache
 import numpy as np
 import torch
 
-__all__ = ["fk_core", "axis_matrices", "rodrigues"]
+__all__ = ["fk_core", "axis_matrices", "rodrigues", "broadcast_shapes"]
+
+
+def broadcast_shapes(*shapes: tuple[int, ...]) -> torch.Size:
+    """``torch.broadcast_shapes`` without its first call's cost (it imports torch's symbolic-shape
+    machinery and sympy: about a second of every command's start-up)."""
+    return torch.Size(np.broadcast_shapes(*(tuple(s) for s in shapes)))
 
 
 def axis_matrices(axes: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -79,9 +85,7 @@ def fk_core(q, base_pos, base_rot, offsets, axes, par: tuple[int, ...]) -> tuple
 def _kernel(q, base_pos, base_rot, offsets, axes, par, node_major: bool = False):
     """FK; with ``node_major`` also returns ``pos``/``rot`` as (J, n, 3[, 3]) in the plan's level order."""
     J = len(par)
-    batch = torch.broadcast_shapes(
-        q.shape[:-1], base_pos.shape[:-1], base_rot.shape[:-2], offsets.shape[:-2], axes.shape[:-2]
-    )
+    batch = broadcast_shapes(q.shape[:-1], base_pos.shape[:-1], base_rot.shape[:-2], offsets.shape[:-2], axes.shape[:-2])
     n = int(np.prod(batch)) if len(batch) else 1
     plan = _plan(par)
     order = torch.as_tensor(plan.order, device=q.device)

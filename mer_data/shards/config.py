@@ -35,7 +35,8 @@ class BuildConfig:
             windows, plus a last one ending at the clip's last frame: every frame is in a window).
         fps: frame rate of the input files [Hz] (LAFAN1: 30).
         out_fps: frame rate of the windows [Hz] (paper: 30).
-        split: ``"paper"``, ``"all"`` or the path of a split file (:mod:`mer_data.motion.splits`).
+        split: ``"paper"``, ``"all"`` or the path of a split file (:mod:`mer_data.motion.splits`);
+            ``mer shards build`` defaults to ``"all"`` (every clip trains), this dataclass to ``"paper"``.
         targets: target robots of the samples; ``("all",)`` = every registered robot.
         augment: augmented target skeletons per (training window, target), besides the URDF one.
         seed: seed of the augmentation draws.

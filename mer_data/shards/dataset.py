@@ -131,6 +131,7 @@ class ShardDataset(torch.utils.data.Dataset):
                 self.windows.append(w)
                 self._index.setdefault((w.robot, w.clip, w.start_frame), w.id)
         want = None if targets is None else set(targets)
+        self._split = split
         self._blocks: list[tuple[int, list[int]]] = []
         self._starts: list[int] = []
         total = 0
@@ -325,7 +326,13 @@ class ShardDataset(torch.utils.data.Dataset):
         return self.windows[self._first[fi] + row], ks[k]
 
     def __repr__(self) -> str:
-        return f"ShardDataset({len(self.files)} files, {len(self.windows)} windows, {self._len} samples, robots={self.robots})"
+        """The files, windows and samples of this selection (``split``, ``targets``), not every window loaded
+        (``windows`` also holds the other split's, for pairing and lookups)."""
+        used = [fi for fi, _ in self._blocks]
+        windows = sum(self.files[fi].num_rows for fi in used)
+        split = f" {self._split}" if self._split is not None else ""
+        return (f"ShardDataset({len(used)} of {len(self.files)} files, {windows}{split} windows, {self._len} samples, "
+                f"robots={self.robots})")  # fmt: skip
 
     def close(self) -> None:
         for f in self.files:

@@ -2,13 +2,14 @@
 
 One module per command: :mod:`.robots` (``mer robots``), :mod:`.shards` (``mer shards``; ``solve``
 is :mod:`.solve`), :mod:`.train`, :mod:`.finetune`, :mod:`.retarget`, :mod:`.evaluate`, :mod:`.zoo`,
-:mod:`.demo` (with :mod:`.demo_walk`). Each parses, resolves names once, and calls the library.
+:mod:`.demo` (with :mod:`.demo_walk`), :mod:`.view` (``mer view``). Each parses, resolves names once, and calls the library.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 from typing import Sequence
 
@@ -23,6 +24,7 @@ from . import robots as robots_cli
 from . import shards as shards_cli
 from . import solve as solve_cli
 from . import train as train_cli
+from . import view as view_cli
 from . import zoo as zoo_cli
 
 log = logging.getLogger("mer")
@@ -43,6 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
     retarget_cli.add_parser(sub)
     evaluate_cli.add_parser(sub)
     zoo_cli.add_parser(sub)
+    view_cli.add_parser(sub)
     for parser in _parsers(p):  # `--robot` is not silently `--robots`
         parser.allow_abbrev = False
     return p
@@ -84,6 +87,9 @@ def _unknown(parser: argparse.ArgumentParser, extra: list[str]) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit status (0 ok, 1 refused input, 2 usage, 130 interrupted)."""
+    # torch's OpenMP threads spin while they wait; on a shared machine they starve each other (300
+    # frames G1 -> H1: 4.8-23 s spinning, 0.5 s passive, at load 5 on 2 cores). Before torch loads.
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
     command = _command_parser(parser, argv)
@@ -107,8 +113,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:  # `mer robots list | head`
-        import os
-
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
 

@@ -43,6 +43,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="files per clip (default csv; npz needs --npz-for)")
     d.add_argument("--shard-index", type=int, default=0, help="this job's share of the (target, clip) pairs (0-based)")
     d.add_argument("--num-shards", type=int, default=1, help="number of jobs sharing the dataset")
+    d.add_argument("--workers", type=int, metavar="N", help="processes for the optimiser, one thread each (default: the cores "
+                   "this process may use; the files do not depend on N)")
     d.add_argument("--json", action="store_true", help="print the summary as JSON instead of a table")
     d.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("-o", "--output", help="output CSV in the target's LAFAN1-style layout")
@@ -113,6 +115,9 @@ def resolve_source(args, path) -> None:
 
 
 def cmd_retarget(args) -> int:
+    from mer_models.retarget.workers import passive_omp
+
+    passive_omp()  # before torch loads
     from mer_data.base.errors import MerError
     from mer_data.motion.sources import BVH_SOURCE
 
@@ -159,13 +164,15 @@ def cmd_retarget(args) -> int:
     why = getattr(args, "method_why", None)
     print(f"{args.source} -> {args.target} ({res.method}{': ' + why if why else ''}): {m.num_frames} frames at {m.fps:g} Hz",
           file=sys.stderr)  # fmt: skip
+    for note in res.notes:
+        print(note, file=sys.stderr)
     for kind, path in res.outputs.items():
         print(f"wrote {kind}: {path}", file=sys.stderr if args.json else sys.stdout)
     if args.json:
         import json
 
         print(json.dumps({"method": res.method, "frames": m.num_frames, "outputs": {k: str(v) for k, v in res.outputs.items()},
-                          "metrics": _plain(res.metrics)}, indent=1))  # fmt: skip
+                          "metrics": _plain(res.metrics), "notes": res.notes}, indent=1))  # fmt: skip
     else:
         print(format_metrics(res.metrics, args.target))
     return 0
@@ -265,13 +272,35 @@ def _dataset(args) -> int:
         from mer_models.zoo.checkpoint import resolve_model
 
         checkpoint = resolve_model(args.model or DEFAULT_MODEL, args.device)
+        if args.allow_unseen:
+            from mer_data.robots.registry import as_robot
+            from mer_models.retarget.clip import zero_shot_notes
+
+            source = args.source if args.source.lower() == "bvh" else as_robot(args.source).name
+            for note in dict.fromkeys(n for t in args.targets for n in zero_shot_notes(checkpoint, as_robot(t).name, source)):
+                print(note, file=sys.stderr)
         kw = {"steps": args.steps, "guidance": args.guidance, "seed": args.seed, "allow_unseen": args.allow_unseen, "bf16": args.bf16,
               "refine": args.refine}  # fmt: skip
+    workers = args.workers
+    if workers is None:
+        from mer_models.retarget.workers import available_cores
+
+        workers = available_cores() if args.device == "cpu" else 1
+    elif workers < 1:
+        raise MerError(f"--workers must be >= 1, got {workers}", fix="give --workers N with N >= 1 (default: the cores there are)")
     bar = None
     if not args.quiet:
         from tqdm import tqdm
 
         bar = tqdm(unit="clip", file=sys.stderr, desc="retarget")
+
+    def started(plan: dict) -> None:
+        skipped = f"{plan['done_before']} of {plan['jobs']} pairs already done in {args.out}, skipped; " if plan["done_before"] else ""
+        line = f"{skipped}{plan['todo']} (target, clip) pairs to do, {plan['workers']} process{'es' if plan['workers'] > 1 else ''}"
+        if bar is not None:
+            bar.write(line, file=sys.stderr)
+        else:
+            print(line, file=sys.stderr)
 
     def progress(done: int, total: int) -> None:
         if bar is not None:
@@ -284,7 +313,7 @@ def _dataset(args) -> int:
             args.input_dir, args.source, args.targets, args.out, method=method, checkpoint=checkpoint,
             formats=args.formats, shard_index=args.shard_index, num_shards=args.num_shards, input_fps=args.fps, npz_fps=args.npz_fps,
             npz_for=args.npz_for, device=args.device, progress=progress, physics=physics_option(args),
-            bvh=bvh_options(args) if args.source.lower() == "bvh" else None, **kw,
+            bvh=bvh_options(args) if args.source.lower() == "bvh" else None, workers=workers, on_start=started, **kw,
         )  # fmt: skip
     finally:
         if bar is not None:

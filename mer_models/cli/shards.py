@@ -27,7 +27,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse._SubParsersAction:
     b.add_argument("--window", type=int, default=60, help="frames per window (default 60)")
     b.add_argument("--stride", type=int, default=None, help="frames between window starts (default: the window)")
     b.add_argument("--fps", type=float, default=30.0, help="frame rate of the input files [Hz] (default 30); windows are 30 Hz")
-    b.add_argument("--split", default=None, metavar="paper|all|FILE", help="paper (3 training clips per robot), all, or a file of training clips (default: paper; all with --synthetic)")
+    b.add_argument("--split", default="all", metavar="all|paper|FILE", help="all (default: every clip trains), paper (the paper's "
+                   "split: 3 training clips per robot, the rest held out for evaluation), or a file of training clips")
     b.add_argument("--targets", nargs="+", default=list(PAPER_TARGETS), metavar="ROBOT", help="target robots (default: the paper's seven; 'all' = every registered robot)")
     b.add_argument("--augment", type=int, default=4, metavar="N", help="augmented target skeletons per training window and target (default 4)")
     b.add_argument("--seed", type=int, default=0, help="augmentation seed (default 0)")
@@ -69,7 +70,7 @@ def cmd_build(args) -> int:
             raise ValueError(f"--synthetic must be at least 1 clip per robot, got {args.synthetic}")
         config = BuildConfig(
             input="synthetic" if synthetic else args.input, robots=tuple(args.robots), format=args.format,
-            window=args.window, stride=args.stride, fps=args.fps, split=args.split or ("all" if synthetic else "paper"),
+            window=args.window, stride=args.stride, fps=args.fps, split=args.split,
             targets=tuple(args.targets), augment=args.augment, seed=args.seed, num_shards=args.num_shards,
             synthetic=args.synthetic or 0, synthetic_seconds=args.synthetic_seconds, synthetic_seed=args.synthetic_seed,
         )  # fmt: skip
@@ -102,6 +103,9 @@ def cmd_build(args) -> int:
         if bar is not None:
             bar.close()
     print(report.summary())
+    print(f"split {config.split}: " + {"all": "every clip trains (--split paper: the paper's 3 training clips per robot, the rest eval)",
+                                        "paper": "the paper's 3 training clips per robot, the rest eval (--split all: every clip trains)"}
+          .get(config.split, "the training clips of the split file, the rest eval"))  # fmt: skip
     print(f"dataset card: {report.card}")
     return 1 if report.failed else 0
 

@@ -49,7 +49,8 @@ from .long_horizon import prepare_reference, retarget_sequences
 
 log = logging.getLogger(__name__)
 
-__all__ = ["METHODS", "RetargetResult", "source_features", "retarget_features", "retarget_features_many", "retarget_file", "sequence_metrics", "MODEL_FPS"]
+__all__ = ["METHODS", "RetargetResult", "source_features", "retarget_features", "retarget_features_many", "retarget_file", "sequence_metrics", "MODEL_FPS",
+           "zero_shot_notes"]
 
 METHODS = ("diffusion", "optimize")
 MODEL_FPS = 30.0
@@ -78,6 +79,7 @@ class RetargetResult:
     reference_skeleton: Skeleton | None = None
     prepared: tuple | None = None
     metrics: dict | None = None  # retarget_file(metrics=True): the paper's metrics and the artifact figures
+    notes: list[str] = field(default_factory=list)  # what a user should know about this result (a zero-shot target, ...)
 
 
 def _check_finite(feats: np.ndarray) -> None:
@@ -231,6 +233,7 @@ def retarget_features_many(
         phys = [None if g is None else physics_inputs(None, ref, g, fps, physics, first.contacts) for g in geos]
     outs: list[dict[str, np.ndarray]]
     labels = [method] * len(tgts)
+    notes: list[list[str]] = [[] for _ in tgts]
     if method == "diffusion":
         if checkpoint is None:
             raise MerError("the diffusion method needs a model", fix="pass --model PATH, or use --method optimize")
@@ -241,6 +244,7 @@ def retarget_features_many(
             for t in tgts:
                 check_robot(checkpoint, t.name, "targets", t.fingerprint)
             check_robot(checkpoint, ref.name, "references", ref.fingerprint)
+        notes = [zero_shot_notes(checkpoint, t.name, ref.name) for t in tgts]
         run = checkpoint.run
         sampler = run.sampler if guidance is None else SamplerConfig(**{**run.sampler.__dict__, "guidance": float(guidance)})
         outs = retarget_sequences(
@@ -271,8 +275,22 @@ def retarget_features_many(
         if phys[i] is not None and (method == "optimize" or refine > 0):
             motion = feasible_motion(motion, phys[i].model, physics)
         results.append(RetargetResult(motion, _reference_points(scaled, shift, eta), label, reference_nodes=scaled + shift,
-                                      reference_skeleton=ref, prepared=prep))  # fmt: skip
+                                      reference_skeleton=ref, prepared=prep, notes=notes[i]))  # fmt: skip
     return results
+
+
+def zero_shot_notes(checkpoint: Checkpoint, target: str, source: str) -> list[str]:
+    """What to tell a user whose model never saw ``target`` (or ``source`` as a reference): the
+    result is zero-shot (``allow_unseen``), and what does better."""
+    seen_t, seen_r = checkpoint.robots.get("targets", {}), checkpoint.robots.get("references", {})
+    out = []
+    if target not in seen_t:
+        out.append(f"zero-shot: the model never saw {target!r} as a target (it saw {', '.join(sorted(seen_t)) or 'none'}); "
+                   f"expect lower accuracy: `mer finetune --robot {target} ...` adapts the model, --refine 5 or --method optimize "
+                   "(the default) runs the optimiser")  # fmt: skip
+    if source not in seen_r:
+        out.append(f"zero-shot: the model never saw {source!r} as a source (it saw {', '.join(sorted(seen_r)) or 'none'})")
+    return out
 
 
 def retarget_file(

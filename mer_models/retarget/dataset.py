@@ -14,11 +14,17 @@
   sorted list, so N independent jobs (a scheduler's array job) cover the dataset once.
 * **Batched across clips** (optimiser): every clip is cut into segments of ``segment`` frames
   plus ``context`` frames on each side (solved with their neighbours so the temporal prior has no
-  seam), and segments of many clips are solved together, up to ``frames_per_batch`` frames at
-  once. The model (``method="diffusion"``) retargets clip by clip through the long-horizon sampler,
+  seam), and segments of several clips are solved together, up to ``frames_per_batch`` frames at
+  once.
+* **In processes** (optimiser, ``workers``): the pairs are cut into chunks (one target's clips in
+  order, a chunk closed once it holds ``frames_per_batch`` frames: a long clip alone, short ones
+  together), independent of each other and of ``workers``; chunks are solved one at a time per
+  process, the largest first (:func:`.workers.run_tasks`), so ``workers=N`` writes the files
+  ``workers=1`` writes.
+* **The model** (``method="diffusion"``) retargets clip by clip through the long-horizon sampler,
   all of a clip's pending targets in one pass, the reference encoded once per window for all of
   them (:func:`~mer_models.retarget.long_horizon.retarget_sequences`); each pair's ``seconds`` is its
-  share of that pass.
+  share of that pass (in this process: ``workers`` applies to the optimiser).
 * **Summary**: a table per (clip, target) at the end and ``OUT/summary.json`` (every finished
   pair, including those of earlier runs and other shards that share ``OUT``).
 """
@@ -31,12 +37,12 @@ import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import torch
 
-from mer_data.base.atomic import atomic_write, sweep_stale
+from mer_data.base.atomic import atomic_write, real_folder, sweep_stale
 from mer_data.base.errors import MerError
 from mer_data.base.locks import hold_locks
 from mer_data.kinematics.jointmap import joint_map
@@ -54,6 +60,7 @@ from mer_models.zoo.checkpoint import Checkpoint
 from .artifacts import ARTIFACT_KEYS
 from .clip import MODEL_FPS, retarget_features_many, sequence_metrics
 from .long_horizon import prepare_reference
+from .workers import run_tasks
 
 log = logging.getLogger(__name__)
 
@@ -276,6 +283,99 @@ def _locked_out(fn: Callable[..., dict]) -> Callable[..., dict]:
     return run
 
 
+@dataclass(frozen=True)
+class _Setup:
+    """What every chunk of an optimiser run shares (sent once to each worker process)."""
+
+    src_robot: Robot | str
+    robots: dict[str, Robot]
+    formats: tuple[str, ...]
+    method: str
+    input_fps: float
+    npz_fps: float | None
+    npz_for: str | None
+    segment: int
+    context: int
+    frames_per_batch: int
+    energy: EnergyConfig
+    device: str
+    physics: Any
+    bvh: Any
+
+
+def _frames_estimate(path: Path, input_fps: float) -> float:
+    """About how many frames at :data:`MODEL_FPS` a clip has, without parsing it: a CSV's lines, a
+    BVH's ``Frames`` x ``Frame Time`` (for grouping and ordering chunks only)."""
+    import gzip
+
+    try:
+        if path.suffix.lower() == ".bvh":
+            frames = period = None
+            with open(path, "rb") as f:
+                for line in f:
+                    key, _, value = line.decode("latin-1").strip().partition(":")
+                    if key.lower() == "frames":
+                        frames = float(value)
+                    elif key.lower() == "frame time":
+                        period = float(value)
+                        break
+            return (frames or 0.0) * (period or 1.0 / MODEL_FPS) * MODEL_FPS
+        with (gzip.open(path, "rb") if path.name.lower().endswith(".gz") else open(path, "rb")) as f:
+            lines = sum(chunk.count(b"\n") for chunk in iter(lambda: f.read(1 << 20), b""))
+        return lines * MODEL_FPS / input_fps
+    except (OSError, ValueError, EOFError):
+        return 0.0  # the reader says what is wrong with it, when the chunk runs
+
+
+def _chunks(jobs: Sequence[Job], frames_per_batch: int, input_fps: float) -> list[list[Job]]:
+    """The pairs cut into independent chunks (module docstring), the largest first: each target's
+    clips in order, a chunk closed once it holds ``frames_per_batch`` frames."""
+    chunks: list[tuple[float, list[Job]]] = []
+    for target in sorted({j.target for j in jobs}):
+        cur, size = [], 0.0
+        for j in sorted((j for j in jobs if j.target == target), key=lambda j: j.clip):
+            cur.append(j)
+            size += _frames_estimate(j.source_path, input_fps)
+            if size >= frames_per_batch:
+                chunks.append((size, cur))
+                cur, size = [], 0.0
+        if cur:
+            chunks.append((size, cur))
+    return [c for _, c in sorted(chunks, key=lambda c: -c[0])]
+
+
+def _solve_chunk(setup: _Setup, jobs: list[Job]) -> list[dict]:
+    """Optimise one chunk (one target's clips): segments of its clips batched together; each
+    finished pair's outputs written, its summary row returned."""
+    target = setup.robots[jobs[0].target]
+    physics = setup.physics
+    geometry = collision_model(target) if physics is not None else None
+    span = setup.segment + 2 * setup.context
+    per_batch = max(1, setup.frames_per_batch // span)
+    queues: dict[tuple, list[tuple[_Clip, tuple[int, int, int, int]]]] = {}  # per source node layout
+    started: dict[str, float] = {}
+    rows = []
+    for k, j in enumerate(jobs):
+        c = _read(j, setup.src_robot, target.skeleton, setup.input_fps, setup.bvh)
+        _lock_stance(c, c.src, geometry, physics)
+        started[j.clip] = time.perf_counter()
+        segs = _segments(c.feats.shape[0], setup.segment, setup.context)
+        c.pending = len(segs)
+        queues.setdefault(c.src.node_names, []).extend((c, s) for s in segs)
+        last = k == len(jobs) - 1
+        for key in list(queues):
+            queue = queues[key]
+            while len(queue) >= per_batch or (last and queue):
+                items, queue = queue[:per_batch], queue[per_batch:]
+                queues[key] = queue
+                _solve_batch(items, target.skeleton, span, setup.energy, setup.device, physics, geometry)
+                for c2 in dict.fromkeys(c for c, _ in items):
+                    if c2.pending == 0:
+                        rows.append(_finish(c2, target, setup.formats, setup.method, time.perf_counter() - started[c2.job.clip],
+                                            setup.npz_fps, physics, geometry, setup.npz_for))  # fmt: skip
+    return rows
+
+
 @_locked_out
 def retarget_dataset(
     input_spec: str,
@@ -293,12 +393,14 @@ def retarget_dataset(
     npz_for: str | None = None,
     segment: int = 512,
     context: int = 8,
-    frames_per_batch: int = 8192,
+    frames_per_batch: int = 2048,
     energy: EnergyConfig | None = None,
     device: str = "cpu",
     progress: Callable[[int, int], None] | None = None,
     physics=None,
     bvh=None,
+    workers: int = 1,
+    on_start: Callable[[dict], None] | None = None,
     **model_kw,
 ) -> dict:
     """Retarget every clip of ``source`` in the input to every target (see the module docstring).
@@ -310,6 +412,10 @@ def retarget_dataset(
             npz_for: the tracker that reads the npz files (required with ``npz``:
             :data:`~mer_models.export.writers.NPZ_TRACKERS`).
         progress: called with (pairs done, pairs to do) of this run's work.
+        workers: processes of an optimiser run, one torch thread each (:mod:`.workers`; 1: this
+            process, on one thread); the files do not depend on it.
+        on_start: called once the work is known, with ``{"jobs", "done_before", "todo", "workers"}``
+            (``done_before``: finished pairs found in ``out_dir`` and skipped).
         bvh: how to read BVH files (``source`` ``"bvh"``: a folder of human motion capture,
             :func:`find_bvh_clips`), :class:`~mer_data.motion.sources.BvhOptions`.
         physics: a :class:`~mer_models.solver.physics.PhysicsConfig`: the optimiser's physical terms
@@ -318,7 +424,8 @@ def retarget_dataset(
             ``refine``: at most that many optimiser iterations from the model's output, as for one file).
 
     Returns:
-        ``{"jobs", "done_before", "done_now", "frames", "seconds", "frames_per_second", "rows"}``;
+        ``{"source", "targets", "method", "workers", "jobs", "done_before", "done_now", "frames", "seconds", "frames_per_second",
+        "rows"}``;
         ``rows`` are the summary rows of every finished pair in ``out_dir`` (this run's and earlier ones).
     """
     unknown = [f for f in formats if f not in FORMATS]
@@ -338,11 +445,16 @@ def retarget_dataset(
     robots = {r.name: r for r in map(as_robot, targets)}
     source, targets = (BVH_SOURCE if human else src_robot.name), list(robots)
     clips = find_bvh_clips(input_spec) if human else find_clips(input_spec, source)
-    jobs = plan_jobs(clips, targets, out_dir, shard_index, num_shards)
-    for t in set(targets):  # temporary files of killed runs (live writers' files are left alone)
+    for t in set(targets):  # OUT/TARGET a real folder (a planted link to elsewhere is refused), then
+        real_folder(out_dir / t, out_dir)  # the temporary files of killed runs swept (live writers' are left alone)
         sweep_stale(out_dir / t)
+    jobs = plan_jobs(clips, targets, out_dir, shard_index, num_shards)
     todo = [j for j in jobs if not j.done()]
     log.info("%d (target, clip) pairs in this shard; %d already done, %d to do", len(jobs), len(jobs) - len(todo), len(todo))
+    chunks = _chunks(todo, frames_per_batch, input_fps) if method == "optimize" else []
+    used = max(1, min(workers, len(chunks)))  # processes this run starts (the model runs here)
+    if on_start is not None:
+        on_start({"jobs": len(jobs), "done_before": len(jobs) - len(todo), "todo": len(todo), "workers": used})
     energy = energy or EnergyConfig()
     t_start, frames_done, pairs_done = time.perf_counter(), 0, 0
     if method == "diffusion":  # clip by clip, all its pending targets in one pass (the reference encoded once per window)
@@ -364,40 +476,19 @@ def retarget_dataset(
                 pairs_done += 1
                 if progress is not None:
                     progress(pairs_done, len(todo))
-        todo_optimize: list[Job] = []
-    else:
-        todo_optimize = todo
-    for target_name in sorted({j.target for j in todo_optimize}):
-        target = robots[target_name]
-        geometry = collision_model(target) if physics is not None else None
-        tjobs = [j for j in todo_optimize if j.target == target_name]
-        span = segment + 2 * context
-        per_batch = max(1, frames_per_batch // span)
-        queues: dict[tuple, list[tuple[_Clip, tuple[int, int, int, int]]]] = {}  # per source node layout
-        started: dict[str, float] = {}
-        for k, j in enumerate(tjobs):
-            c = _read(j, src_robot, target.skeleton, input_fps, bvh)
-            _lock_stance(c, c.src, geometry, physics)
-            started[j.clip] = time.perf_counter()
-            segs = _segments(c.feats.shape[0], segment, context)
-            c.pending = len(segs)
-            queues.setdefault(c.src.node_names, []).extend((c, s) for s in segs)
-            last = k == len(tjobs) - 1
-            for key in list(queues):
-                queue = queues[key]
-                while len(queue) >= per_batch or (last and queue):
-                    items, queue = queue[:per_batch], queue[per_batch:]
-                    queues[key] = queue
-                    _solve_batch(items, target.skeleton, span, energy, device, physics, geometry)
-                    for c2 in dict.fromkeys(c for c, _ in items):
-                        if c2.pending != 0:
-                            continue
-                        _finish(c2, target, formats, method, time.perf_counter() - started[c2.job.clip], npz_fps,
-                                physics, geometry, npz_for)  # fmt: skip
-                        frames_done += c2.feats.shape[0]
-                        pairs_done += 1
-                        if progress is not None:
-                            progress(pairs_done, len(todo))
+    if chunks:
+        setup = _Setup(src_robot, robots, tuple(formats), method, input_fps, npz_fps, npz_for, segment, context, frames_per_batch,
+                       energy, device, physics, bvh)  # fmt: skip
+
+        def collect(rows: list[dict]) -> None:
+            nonlocal frames_done, pairs_done
+            for row in rows:
+                frames_done += row["frames"]
+                pairs_done += 1
+                if progress is not None:
+                    progress(pairs_done, len(todo))
+
+        run_tasks(_solve_chunk, setup, chunks, used, collect)
     seconds = time.perf_counter() - t_start
     rows = []
     for j in jobs:
@@ -405,7 +496,7 @@ def retarget_dataset(
             rows.append(json.loads(j.output("metrics").read_text()))
     label = f"diffusion+refine{model_kw['refine']}" if method == "diffusion" and model_kw.get("refine") else method
     summary = {
-        "source": source, "targets": sorted(set(targets)), "method": label, "jobs": len(jobs),
+        "source": source, "targets": sorted(set(targets)), "method": label, "workers": used, "jobs": len(jobs),
         "done_before": len(jobs) - len(todo), "done_now": len(todo), "frames": frames_done, "seconds": round(seconds, 3),
         "frames_per_second": round(frames_done / seconds, 1) if seconds > 0 and frames_done else None, "rows": rows,
     }  # fmt: skip
@@ -446,6 +537,8 @@ def format_summary(summary: dict) -> str:
     for r in sorted(summary["rows"], key=lambda r: (r["target"], r["clip"])):
         lines.append(f"{r['target']:10s} {r['clip'][:28]:28s} {r['frames']:7d} {metric_cells(r)}")
     fps = summary.get("frames_per_second")
-    lines.append(f"{summary['jobs']} pairs in this shard: {summary['done_before']} done before, {summary['done_now']} now "
-                 f"({summary['frames']} frames in {summary['seconds']} s" + (f", {fps} frames/s)" if fps else ")"))  # fmt: skip
+    procs = summary.get("workers", 1)
+    lines.append(f"{summary['jobs']} pairs in this shard: {summary['done_before']} skipped (done before), {summary['done_now']} now "
+                 f"({summary['frames']} frames in {summary['seconds']} s" + (f", {fps} frames/s" if fps else "")
+                 + (f", {procs} processes)" if procs > 1 else ")"))  # fmt: skip
     return "\n".join(lines)

@@ -28,9 +28,9 @@ def block_tridiagonal_solve(a: torch.Tensor, c: torch.Tensor, b: torch.Tensor) -
         (where not, its x is zero).
     """
     B, T, n = b.shape
-    low = torch.zeros(B, T, n, n, dtype=a.dtype, device=a.device)  # low[:, t]: row t's block on x_{t-1}
+    low = torch.zeros(B, T, n, dtype=a.dtype, device=a.device)  # low[:, t]: the diagonal of row t's block on x_{t-1}
     if T > 1:
-        low[:, 1:] = torch.diag_embed(c)
+        low[:, 1:] = c
     ok = torch.ones(B, dtype=torch.bool, device=a.device)
     x = _cyclic_reduction(a, low, b, ok)
     return torch.where(ok[:, None, None], x, torch.zeros_like(x)), ok
@@ -47,11 +47,14 @@ def _spd_inverse(a: torch.Tensor, ok: torch.Tensor) -> torch.Tensor:
 
 
 def _cyclic_reduction(a: torch.Tensor, low: torch.Tensor, b: torch.Tensor, ok: torch.Tensor) -> torch.Tensor:
-    """One level of :func:`_block_tridiagonal_solve` on dense couplings ``low`` (B, T, n, n)
-    (row t's block on x_{t-1}, ``low[:, 0] = 0``; row t's block on x_{t+1} is ``low[:, t+1]^T``)."""
+    """One level of :func:`block_tridiagonal_solve` on couplings ``low``: (B, T, n, n) dense blocks, or
+    (B, T, n) the diagonals of diagonal ones (the first level; products with them are scalings,
+    the same numbers as the dense products) (row t's block on x_{t-1}, ``low[:, 0] = 0``; row t's
+    block on x_{t+1} is ``low[:, t+1]^T``)."""
     B, T, n = b.shape
     if T == 1:
         return (_spd_inverse(a, ok) @ b[..., None])[..., 0]
+    diag = low.dim() == 3
     if T % 2:  # an uncoupled identity frame at the end makes the length even; its x is 0
         a = torch.cat([a, torch.eye(n, dtype=a.dtype, device=a.device).expand(B, 1, n, n)], 1)
         low = torch.cat([low, torch.zeros_like(low[:, :1])], 1)
@@ -62,17 +65,26 @@ def _cyclic_reduction(a: torch.Tensor, low: torch.Tensor, b: torch.Tensor, ok: t
     inv_l = torch.cat([torch.zeros_like(inv[:, :1]), inv[:, :-1]], 1)
     lo_l = torch.cat([torch.zeros_like(lo[:, :1]), lo[:, :-1]], 1)
     bo_l = torch.cat([torch.zeros_like(bo[:, :1]), bo[:, :-1]], 1)
-    up = lo.transpose(-1, -2)  # even row 2k's block on x_{2k+1}
-    le_inv = le @ inv_l
-    up_inv = up @ inv
-    a2 = ae - le_inv @ le.transpose(-1, -2) - up_inv @ lo
-    low2 = -(le_inv @ lo_l)
+    if diag:  # diag(l) @ X scales rows, X @ diag(l) columns
+        le_inv = le[..., :, None] * inv_l
+        up_inv = lo[..., :, None] * inv  # even row 2k's block on x_{2k+1} is diag(lo)
+        a2 = ae - le_inv * le[..., None, :] - up_inv * lo[..., None, :]
+        low2 = -(le_inv * lo_l[..., None, :])
+    else:
+        up = lo.transpose(-1, -2)  # even row 2k's block on x_{2k+1}
+        le_inv = le @ inv_l
+        up_inv = up @ inv
+        a2 = ae - le_inv @ le.transpose(-1, -2) - up_inv @ lo
+        low2 = -(le_inv @ lo_l)
     b2 = be - (le_inv @ bo_l[..., None])[..., 0] - (up_inv @ bo[..., None])[..., 0]
     xe = _cyclic_reduction(a2, low2, b2, ok)
     # odd frame 2k+1: b - low x_{2k} - (row's block on x_{2k+2}) x_{2k+2}
     le_r = torch.cat([le[:, 1:], torch.zeros_like(le[:, :1])], 1)  # row 2k+2's block on x_{2k+1}, transposed below
     xe_r = torch.cat([xe[:, 1:], torch.zeros_like(xe[:, :1])], 1)
-    rhs = bo - (lo @ xe[..., None])[..., 0] - (le_r.transpose(-1, -2) @ xe_r[..., None])[..., 0]
+    if diag:
+        rhs = bo - lo * xe - le_r * xe_r
+    else:
+        rhs = bo - (lo @ xe[..., None])[..., 0] - (le_r.transpose(-1, -2) @ xe_r[..., None])[..., 0]
     xo = (inv @ rhs[..., None])[..., 0]
     x = torch.stack([xe, xo], 2).flatten(1, 2)
     return x[:, :T]

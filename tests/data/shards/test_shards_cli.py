@@ -23,7 +23,7 @@ def inp(tmp_path_factory):
 
 def _build(inp, out, *extra):
     return main(["shards", "build", "--input", str(inp), "--robots", "g1", "h1", "--out", str(out), "--augment", "1",
-                 "--workers", "1", *extra])  # fmt: skip
+                 "--workers", "1", "--split", "paper", *extra])  # fmt: skip
 
 
 def test_build_and_inspect(inp, tmp_path, capsys):
