@@ -41,11 +41,12 @@ def lowest_points(model: Any, pos: torch.Tensor, rot: torch.Tensor) -> tuple[tor
 
 
 def pair_depths(model: Any, pos: torch.Tensor, rot: torch.Tensor, pairs: Any = None, *, margin: float = 0.0,
-                chunk: int = 2048, which: str = "points") -> torch.Tensor:  # fmt: skip
+                chunk: int = 2048, which: str = "points", where: torch.Tensor | None = None) -> torch.Tensor:  # fmt: skip
     """Penetration depth of each checked pair (see the module docstring): (..., K) [m].
 
     Args:
         pairs: (K, 2) shape indices (default ``model.pairs``).
+        where: optional bool (..., K): only these (frame, pair) entries are computed; the rest are ``-inf``.
         margin: pairs whose bounding spheres are more than ``margin`` apart are not computed exactly.
         chunk: (frame, pair) entries computed at once (memory ~ chunk * points * planes).
         which: the sample points whose depth is measured: ``points`` (vertices and edge points,
@@ -67,6 +68,10 @@ def pair_depths(model: Any, pos: torch.Tensor, rot: torch.Tensor, pairs: Any = N
     gap = (ca - cb).norm(dim=-1) - radius[a] - radius[b]  # (B, K): bounding spheres
     out = -gap.clamp_min(0)
     near = gap <= margin
+    if where is not None:
+        keep = where.reshape(-1, K).to(device=near.device)
+        out = out.masked_fill(~keep, float("-inf"))
+        near &= keep
     if bool(near.any()):  # then world-axis-aligned boxes of the vertices: tighter for long bodies
         with torch.no_grad():
             v = shape_points(model, p2, r2, "vertices")  # (B, S, V, 3)
@@ -120,7 +125,8 @@ def pair_contacts(model: Any, pos: torch.Tensor, rot: torch.Tensor, *, margin: f
         pos, rot: (B, T, J, 3), (B, T, J, 3, 3) node poses.
         pairs: (K, 2) the shape pairs to look at (default ``model.pairs``).
         which: the sample points (:func:`pair_depths`).
-        mask: (B, K) bool, the pairs each sample looks at (default: all).
+        mask: (B, K) bool, the pairs each sample looks at, or (B, T, K), each frame of each sample
+            (default: all); the others are not computed.
 
     Returns:
         None if no pair is within ``margin``; else ``(entries, contacts)``: entries ``(b, t, slot,
@@ -128,9 +134,8 @@ def pair_contacts(model: Any, pos: torch.Tensor, rot: torch.Tensor, *, margin: f
     """
     B, T = pos.shape[:2]
     pairs = torch.as_tensor(model.pairs if pairs is None else pairs, device=pos.device).reshape(-1, 2)
-    d = pair_depths(model, pos, rot, pairs, margin=margin, which=which)  # (B, T, K)
-    if mask is not None:
-        d = d.masked_fill(~mask[:, None, :], float("-inf"))
+    where = None if mask is None else (mask[:, None, :] if mask.dim() == 2 else mask).expand(B, T, pairs.shape[0])
+    d = pair_depths(model, pos, rot, pairs, margin=margin, which=which, where=where)  # (B, T, K)
     K = min(top, d.shape[-1])
     if K == 0:
         return None

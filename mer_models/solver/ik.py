@@ -138,12 +138,21 @@ class _Problem:
             self.orow_node = orows.repeat_interleave(3, dim=1)
             self.col_of_row = torch.arange(3, device=dev).repeat(M)  # which column of R each row is
         self.anc_rows = torch.cat([anc_p, anc_o], 1) if self.M else anc_p  # (B,R,J) which joints move each row
+        # linearise's Jacobian, one small product per frame: the joint nodes that drive a column ("entries": the
+        # columns' own nodes, and mimic nodes), which rows each moves, and the fold of entries into columns
+        ents, ent_mask = _rows((self.fold != 0).any(-1))  # (B, E)
+        E = self.E = ents.shape[1]
+        self.ents = ents
+        moves = torch.gather(self.anc_rows, 2, ents[:, None, :].expand(B, self.anc_rows.shape[1], E))
+        self.moves_e = (moves * ent_mask[:, None].to(dtype)).repeat_interleave(3, dim=1)[:, None]  # (B, 1, 3R, E)
+        ent_fold = torch.gather(self.fold, 1, ents[..., None].expand(B, E, D)) * ent_mask[..., None].to(dtype)  # (B, E, D)
+        plain = E == D and torch.equal(ent_fold, torch.diag_embed(col_mask.to(dtype)))  # no mimic joints: entries = columns
+        self.ent_fold = None if plain else ent_fold
         self.lower = torch.gather(graph.lower, 1, cols)[:, None]
         self.upper = torch.gather(graph.upper, 1, cols)[:, None]
         self.nominal = torch.gather(graph.nominal, 1, cols)[:, None]
         self.reg = torch.gather(w_reg, 1, cols)[:, None]  # (B,1,D)
         self.n = D + 6
-        self.eye = torch.eye(self.n, dtype=dtype, device=dev)
         self.pad = (~col_mask).to(dtype)[:, None]  # padding columns: identity rows keep the system regular
         self.padd = torch.cat([self.pad, torch.zeros(B, 1, 6, dtype=dtype, device=dev)], -1)  # (B,1,n)
 
@@ -177,32 +186,54 @@ class _Problem:
         return kp, ocols, cost
 
     def linearise(self, pos, rot, kp, ocols) -> tuple[torch.Tensor, torch.Tensor]:
-        """Gauss-Newton normal equations of the fit terms: ``J^T J`` (B, T, n, n) and ``J^T r`` (B, T, n)."""
-        B, T, K, M, D, dtype, dev, graph = self.B, self.T, self.K, self.M, self.D, self.dtype, self.dev, self.graph
-        axes_w = (rot @ graph.axes[:, None, :, :, None]).squeeze(-1)  # (B,T,J,3) world joint axes
-        # a_j x (p_k - p_j) = [a_j]x p_k - a_j x p_j; rotation columns: a_j x c_l = [a_j]x c_l
+        """Gauss-Newton normal equations of the fit terms: ``J^T J`` (B, T, n, n) and ``J^T r`` (B, T, n).
+
+        Per frame the weighted Jacobian and residual ``[J | r]`` (3R, n + 1) are one product
+        ``[L | r] (3R, 7) @ W (7, E + 7)``, masked by which joints move each row (then folded into
+        the columns where mimic joints drive one), and ``[J | r]^T [J | r]`` holds both:
+        a key point's row ``i`` is ``[-[v]x_i, -e_i]`` (``v`` the point), an orientation row
+        ``[-[c]x_i, 0]`` (``c`` the rotation column); ``W``'s columns are each joint's ``[a_j; a_j x p_j]``
+        (so a row gets ``a_j x (v - p_j)``, resp. ``a_j x c``), the base translation's ``[0; -e_k]``
+        and the base rotation's ``[e_k; -[p_0]x e_k]`` (``-[v - p_0]x``), and ``r``'s ``e_7``.
+        """
+        B, T, K, M, D, E, dtype, dev = self.B, self.T, self.K, self.M, self.D, self.E, self.dtype, self.dev
+        R = K + 3 * M
         vecs = torch.cat([kp, ocols], 2) if M else kp  # (B,T,R,3)
-        jrows = torch.einsum("btjde,btre->btrdj", _skew(axes_w), vecs)  # (B,T,R,3,J)
-        jrows[:, :, :K] -= torch.linalg.cross(axes_w, pos).transpose(-1, -2)[:, :, None]
-        res = [(kp - self.goals) * self.w_kp[..., None].sqrt()]
-        jb = [torch.cat([torch.eye(3, dtype=dtype, device=dev).expand(B, T, K, 3, 3), -_skew(kp - pos[:, :, :1])], -1)]
-        wr = [self.w_kp]
+        x, y, z = vecs.unbind(-1)
+        left = torch.zeros(B, T, R, 3, 7, dtype=dtype, device=dev)
+        left[..., 0, 1], left[..., 0, 2], left[..., 1, 0] = z, -y, -z
+        left[..., 1, 2], left[..., 2, 0], left[..., 2, 1] = x, y, -x
+        left[:, :, :K, :, 3:6] = -torch.eye(3, dtype=dtype, device=dev)
+        w = torch.cat([self.w_kp, self.w_o], -1) if M else self.w_kp  # (B,1,R)
+        left[..., :6] *= w.sqrt()[..., None, None]
+        left[:, :, :K, :, 6] = (kp - self.goals) * self.w_kp[..., None].sqrt()
         if M:
-            res.append((ocols - self.gcols) * self.w_o[..., None].sqrt())
-            jb.append(torch.cat([torch.zeros(B, T, 3 * M, 3, 3, dtype=dtype, device=dev), -_skew(ocols)], -1))
-            wr.append(self.w_o)
-        jrows = jrows * self.anc_rows[:, None, :, None, :]
-        jq = (jrows.flatten(1, 3) @ self.fold).view(B, T, -1, 3, D)  # (B,T,R,3,D): mimic nodes folded into their sources
-        jac = torch.cat([jq, torch.cat(jb, 2)], -1)  # (B,T,R,3,n)
-        sw = torch.cat(wr, -1).sqrt()[..., None, None]  # (B,1,R,1,1)
-        jw = (jac * sw).flatten(2, 3)  # (B,T,3R,n) weighted
-        r = torch.cat(res, 2).flatten(2, 3)  # (B,T,3R) weighted residuals
-        return jw.transpose(-1, -2) @ jw, (jw.transpose(-1, -2) @ r[..., None])[..., 0]
+            left[:, :, K:, :, 6] = (ocols - self.gcols) * self.w_o[..., None].sqrt()
+        idx = self.ents[:, None, :, None]
+        axes = torch.gather(self.graph.axes, 1, self.ents[..., None].expand(B, E, 3))  # (B,E,3)
+        a = (torch.gather(rot, 2, idx[..., None].expand(B, T, E, 3, 3)) @ axes[:, None, :, :, None])[..., 0]  # (B,T,E,3) world
+        right = torch.zeros(B, T, 7, E + 7, dtype=dtype, device=dev)
+        right[:, :, 0:3, :E] = a.transpose(-1, -2)
+        right[:, :, 3:6, :E] = torch.linalg.cross(a, torch.gather(pos, 2, idx.expand(B, T, E, 3))).transpose(-1, -2)
+        eye = torch.eye(3, dtype=dtype, device=dev)
+        right[:, :, 3:6, E : E + 3] = -eye
+        right[:, :, 0:3, E + 3 : E + 6] = eye
+        right[:, :, 3:6, E + 3 : E + 6] = -_skew(pos[:, :, 0])
+        right[:, :, 6, E + 6] = 1
+        jr = left.flatten(2, 3) @ right  # (B,T,3R,E+7): [J | r] before the ancestor mask
+        jr[..., :E] *= self.moves_e
+        if self.ent_fold is not None:  # mimic joints: entries folded into the columns that drive them
+            jr = torch.cat([jr[..., :E] @ self.ent_fold[:, None], jr[..., E:]], -1)
+        hg = jr.transpose(-1, -2) @ jr  # (B,T,n+1,n+1)
+        n = D + 6
+        return hg[..., :n, :n].contiguous(), hg[..., :n, n].contiguous()
 
     def damp(self, h: torch.Tensor, mu: torch.Tensor) -> torch.Tensor:
         """Marquardt damping ``mu * diag(h)`` (mu broadcast to (B, T)) and identity rows on the padding."""
         diag = h.diagonal(dim1=-2, dim2=-1)
-        return h + mu[..., None, None] * torch.diag_embed(diag + 1e-9) + torch.diag_embed(self.padd.expand(self.B, self.T, self.n)) + 1e-9 * self.eye
+        out = h.clone()
+        out.diagonal(dim1=-2, dim2=-1).copy_(diag + mu[..., None] * (diag + 1e-9) + self.padd + 1e-9)
+        return out
 
     def candidate(self, qd, base_pos, base_rot, step):
         """Apply a step (B, T, n): angles projected onto the limits, the base rotation in the world frame."""
@@ -248,7 +279,7 @@ def gauss_newton_ik(
     """
     B, T, J = q.shape
     P = _Problem(cfg, graph, eta, goal, q, goal_rot, rot_mask)
-    D, n = P.D, P.n
+    D = P.D
     phys = physics.build(P, cfg.w_kp) if physics is not None else None
     sm = P.dof_weight(smooth * cfg.w_kp) if T > 1 else P.zeros(B, 1, D)
     reg, nominal = P.reg, P.nominal
@@ -273,7 +304,7 @@ def gauss_newton_ik(
             h, g = h + ph, g + pg
         prior_h = torch.cat([reg + sm, P.zeros(B, 1, 6)], -1)
         g = g + torch.cat([reg * (qd - nominal) + sm * (qd - qbar), P.zeros(B, T, 6)], -1)
-        h = h + torch.diag_embed(prior_h.expand(B, T, n))
+        h.diagonal(dim1=-2, dim2=-1).add_(prior_h)
         L, info = torch.linalg.cholesky_ex(P.damp(h, mu))
         step = -torch.cholesky_solve(g[..., None], L)[..., 0]
         step = torch.where((info == 0)[..., None], step, torch.zeros_like(step))
@@ -333,6 +364,7 @@ def coupled_lm_ik(
     tol: float = DEFAULT_TOL,
     stats: dict | None = None,
     physics: Any = None,
+    hold: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Levenberg-Marquardt on a whole window at once: the temporal prior couples the frames exactly.
 
@@ -346,7 +378,8 @@ def coupled_lm_ik(
     Jacobi prior needs many iterations to let the frames move together.
 
     Arguments and return as :func:`gauss_newton_ik`; ``stats["cost"]`` (B, T) splits each
-    difference of the prior between its two frames.
+    difference of the prior between its two frames. ``hold`` (B, T) bool: frames that stay where
+    they are (their neighbours' prior still sees them: a repair of a few frames eases in and out).
     """
     B, T, J = q.shape
     P = _Problem(cfg, graph, eta, goal, q, goal_rot, rot_mask)
@@ -378,7 +411,7 @@ def coupled_lm_ik(
     for it in range(iters):
         report(it, iters)
         h, g = P.linearise(pos, rot, kp, ocols)
-        h = h + torch.diag_embed(prior_h)
+        h.diagonal(dim1=-2, dim2=-1).add_(prior_h)
         g = g + prior_grad(qd)
         c_speed = None
         if phys is not None:  # the physical terms, their coupled parts held at this iterate
@@ -389,14 +422,18 @@ def coupled_lm_ik(
             sp = phys.speed_terms(qd, P.cols)  # joint speed: exact coupling of neighbouring frames
             if sp is not None:
                 diag, off, grad = sp
-                h = h + torch.diag_embed(torch.cat([diag, P.zeros(B, T, 6)], -1))
+                h.diagonal(dim1=-2, dim2=-1)[..., :D].add_(diag)
                 g = g + torch.cat([grad, P.zeros(B, T, 6)], -1)
                 c_speed = torch.cat([off, P.zeros(B, T - 1, 6)], -1)
         # active set: a joint at a limit that the gradient pushes further out stays where it is
         gq = g[..., :D]
         fixed = ((qd <= P.lower) & (gq > 0)) | ((qd >= P.upper) & (gq < 0))  # (B, T, D)
-        free = torch.cat([~fixed, torch.ones(B, T, 6, dtype=torch.bool, device=P.dev)], -1).to(P.dtype)
-        h = h * free[..., :, None] * free[..., None, :] + torch.diag_embed(1 - free)
+        free = torch.cat([~fixed, torch.ones(B, T, 6, dtype=torch.bool, device=P.dev)], -1)
+        if hold is not None:
+            free = free & ~hold.to(P.dev)[..., None]
+        free = free.to(P.dtype)
+        h = h.mul_(free[..., :, None]).mul_(free[..., None, :])
+        h.diagonal(dim1=-2, dim2=-1).add_(1 - free)
         g = g * free
         c = coupling[:, None] if c_speed is None else coupling[:, None] + c_speed
         c = c * free[:, 1:] * free[:, :-1]  # (B, T-1, n): a held joint is coupled to nothing

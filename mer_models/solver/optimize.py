@@ -197,7 +197,8 @@ def optimize_motion(
                     sub = {k: None if v is None else v[rows] for k, v in gkw.items()}
                     with solver_stage("self-contact repair"):
                         qr, pr, rr = coupled_lm_ik(cfg, graph.select(rows), eta[rows], goal[rows], q0[rows], p0[rows], r0[rows],
-                                                   iters=repair.cfg.self_repair_iters, smooth=smooth, tol=tol, physics=terms, **sub)  # fmt: skip
+                                                   iters=repair.cfg.self_repair_iters, smooth=smooth * repair.cfg.repair_smooth, tol=tol, physics=terms,
+                                                   hold=terms.held_frames(), **sub)  # fmt: skip
                     q0, p0, r0 = q0.clone(), p0.clone(), r0.clone()
                     q0[rows], p0[rows], r0[rows] = qr, pr, rr
     if iters > 0:

@@ -21,7 +21,9 @@ With ``lock_blend`` >= 0, before the solve, the position goals of each stance fo
 are held at their stance phase's mean x, y (:meth:`PhysicsInputs.lock_goals`, blended over
 ``lock_blend`` frames): the goals of a planted foot do not slide; and the feet's goals are kept
 the target's foot width apart (:meth:`PhysicsInputs.separate_feet`). With ``self_repair_iters`` > 0
-the self term runs only after the solve, on the samples and pairs it left interpenetrating
+the self term runs only after the solve, on the samples and pairs it left interpenetrating, and
+on frames within ``repair_reach`` of where they do (and of where a body other than a foot is on
+the floor), the other frames held, with the temporal prior ``repair_smooth`` times stiffer
 (:meth:`PhysicsInputs.repair`). The anchor term couples frames; it takes the phase means from the
 previous iterate, Jacobi-style, in both solvers. Weights are relative to ``EnergyConfig.w_kp``;
 the defaults (floor, joint speed, the stance lock, feet apart and the self-penetration repair on;
@@ -59,9 +61,14 @@ class PhysicsConfig:
     self_margin: float = 0.005
     max_contacts: int = 8  # self-penetration rows per frame
     self_repair_iters: int = 6  # > 0: the self term only in this many whole-window iterations after the solve, on the pairs it left interpenetrating
+    repair_depth: float = 0.0025  # a pair interpenetrating deeper than this [m] in some frame triggers the repair
+    repair_smooth: float = 8.0  # the temporal prior's weight in the repair, relative to the solve's
+    repair_touch: float | None = 0.0  # frames where a body other than a foot is lower than this [m] get the repair too (None: not)
+    repair_reach: int = 6  # the repair looks for a pair only within this many frames of where it was found (-1: every frame)
     w_speed: float = 1.0
     speed_fraction: float = 0.95  # joint speed held under this share of the URDF velocity limit
     lock_blend: int = 4  # frames over which a stance foot's goals blend into and out of their anchor (-1: no lock)
+    lock_weight: float = 1.0  # how far a stance foot's goals move to their anchor (1: all the way; 0: not at all)
     coarse: bool = True  # also in the optimiser's coarse (key-frame) stage, not only in the fine one
     feet_gap: float = 0.02  # the feet's goals kept this far apart beyond the target's foot width [m] (-1: off; PhysicsInputs.separate_feet)
     fine_iters: int = 8  # at least this many iterations of the fine (whole-window) stage (0: the optimiser's own)
@@ -84,8 +91,9 @@ class PhysicsInputs:
     cfg: PhysicsConfig = PhysicsConfig()
     ref_feet: tuple[tuple[int, ...], tuple[int, ...]] = ((), ())
     pairs: Any = None  # (K, 2) the shape pairs the self term looks at (None: those near at the first iterate)
-    pair_mask: Any = None  # (B, K) bool: which of ``pairs`` each sample's self term looks at (None: all)
+    pair_mask: Any = None  # (B, K) or (B, T, K) bool: which of ``pairs`` each sample's (frame's) self term looks at (None: all)
     ref_knees: tuple[int, int] = (-1, -1)  # the reference's knee nodes (-1: none)
+    free: Any = None  # (B, T) bool: the frames a repair may move (None: all; :meth:`repair`)
 
     @classmethod
     def of_reference(cls, model: Any, contacts: torch.Tensor | None, fps: float, cfg: PhysicsConfig, ref: Any) -> "PhysicsInputs":
@@ -103,8 +111,9 @@ class PhysicsInputs:
 
     @property
     def repairs(self) -> bool:
-        """The self term runs as a repair after the solve (``cfg.self_repair_iters``), not in it."""
-        return self.cfg.w_self > 0 and self.cfg.self_repair_iters > 0
+        """A repair runs after the solve (``cfg.self_repair_iters``): the self term there, not in it,
+        and the frames where a body other than a foot is on the floor smoothed (``cfg.repair_touch``)."""
+        return self.cfg.self_repair_iters > 0 and (self.cfg.w_self > 0 or self.cfg.repair_touch is not None)
 
     def main(self) -> "PhysicsInputs":
         """The terms of the main solve: without the self term where it runs as a repair."""
@@ -112,23 +121,47 @@ class PhysicsInputs:
 
     def repair(self, pos: torch.Tensor, rot: torch.Tensor) -> tuple[torch.Tensor, "PhysicsInputs"] | None:
         """The repair iterations' samples and terms for a solution with node poses ``pos`` (B, T, J, 3),
-        ``rot`` (B, T, J, 3, 3): the samples with a pair interpenetrating (by more than
-        ``cfg.self_margin`` / 2) in some frame, (N,) indices, and the terms of those samples with
-        the self term on those pairs, each sample on its own (its result does not depend on the
-        rest of the batch); None when no sample has one."""
-        from mer_data.kinematics.collision import pair_depths
+        ``rot`` (B, T, J, 3, 3), or None when no sample needs one.
 
-        if not self.repairs or not len(self.model.pairs):
+        A frame needs it where a pair of bodies interpenetrates by more than ``cfg.repair_depth``,
+        or where a body other than a foot is lower than ``cfg.repair_touch`` (lying, kneeling: the
+        floor term switching on and off there kinks the motion, which the repair's stiffer temporal
+        prior smooths). Returns the samples with such a frame, (N,) indices, and their terms: the
+        self term on the pairs found (each looked for within ``cfg.repair_reach`` frames of where it
+        was found), and every frame farther than ``repair_reach`` from a found one held where it is
+        (:meth:`held_frames`). Each sample on its own: its result does not depend on the rest of the batch.
+        """
+        from mer_data.kinematics.collision import lowest_points, pair_depths
+
+        if not self.repairs:
             return None
-        d = pair_depths(self.model, pos, rot, which=SELF_POINTS)  # (B, T, K)
-        bad = (d > 0.5 * self.cfg.self_margin).any(1)  # (B, K)
-        any_pair = bad.any(0)
-        rows = bad.any(1).nonzero().flatten()
+        B, T, K = pos.shape[0], pos.shape[1], len(self.model.pairs)
+        if self.cfg.w_self > 0 and K:
+            hit = pair_depths(self.model, pos, rot, which=SELF_POINTS) > self.cfg.repair_depth  # (B, T, K)
+        else:
+            hit = torch.zeros(B, T, K, dtype=torch.bool, device=pos.device)
+        frames = hit.any(-1)
+        body = torch.as_tensor(self.model.foot, device=pos.device) == 0
+        if self.cfg.repair_touch is not None and bool(body.any()):
+            frames = frames | (lowest_points(self.model, pos, rot)[0][..., body].amin(-1) < self.cfg.repair_touch)
+        rows = frames.any(1).nonzero().flatten()
         if not len(rows):
             return None
+        any_pair = hit[rows].any((0, 1))
         contacts = None if self.contacts is None else self.contacts[rows.to(self.contacts.device)]
-        pairs = torch.as_tensor(self.model.pairs, device=pos.device)[any_pair]
-        return rows, dataclasses.replace(self, contacts=contacts, pairs=pairs, pair_mask=bad[rows][:, any_pair])
+        pairs = torch.as_tensor(self.model.pairs, device=pos.device).reshape(-1, 2)[any_pair]
+        mask = hit[rows][..., any_pair]  # (N, T, K'): where each pair was found
+        free = frames[rows]  # (N, T)
+        if self.cfg.repair_reach >= 0:  # widened by repair_reach frames
+            mask, free = _widen(mask, self.cfg.repair_reach), _widen(free[..., None], self.cfg.repair_reach)[..., 0]
+        else:
+            mask, free = mask.any(1), torch.ones_like(free)
+        return rows, dataclasses.replace(self, contacts=contacts, pairs=pairs, pair_mask=mask, free=free)
+
+    def held_frames(self) -> torch.Tensor | None:
+        """(B, T) bool: the frames a repair leaves where they are (farther than ``cfg.repair_reach``
+        frames from any it found interpenetrating); None: none held."""
+        return None if self.free is None else ~torch.as_tensor(self.free)
 
     def lock_goals(self, goal: torch.Tensor) -> torch.Tensor:
         """The position goals (B, T, Jr, 3) with each stance foot's sole points (``ref_feet``: the
@@ -141,7 +174,7 @@ class PhysicsInputs:
             if not nodes:
                 continue
             down = self.contacts[..., i].to(goal.device)
-            w = _blend(down, self.cfg.lock_blend).to(goal.dtype)[..., None]  # (B, T, 1)
+            w = self.cfg.lock_weight * _blend(down, self.cfg.lock_blend).to(goal.dtype)[..., None]  # (B, T, 1)
             for n in nodes:
                 xy = goal[:, :, n, :2]
                 out[:, :, n, :2] = w * _anchor(xy, down) + (1 - w) * xy
@@ -210,6 +243,15 @@ def foot_extent(model: Any) -> tuple[float, float]:
 SELF_REACH_M = 0.05  # pairs further apart than this at a solve's first iterate are not looked at in it
 SELF_POINTS = "vertices"  # the solver's self-penetration search looks at hull vertices only (the metrics also at edge points)
 FLOOR_VERTICES = 4  # per shape, the lowest this many vertices are held above the floor
+
+
+def _widen(mask: torch.Tensor, r: int) -> torch.Tensor:
+    """(N, T, K) bool, each (n, k) series widened by ``r`` frames either way."""
+    n, T, k = mask.shape
+    if not mask.numel():
+        return mask
+    wide = torch.nn.functional.max_pool1d(mask.permute(0, 2, 1).reshape(n * k, 1, T).float(), 2 * r + 1, 1, r)
+    return wide.reshape(n, k, T).permute(0, 2, 1) > 0
 
 
 def _blend(down: torch.Tensor, k: int) -> torch.Tensor:

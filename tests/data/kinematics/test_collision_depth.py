@@ -99,3 +99,18 @@ def test_lowest_points_are_the_lowest_vertices():
     z, idx = lowest_points(m, t, r)
     world = torch.einsum("fsij,svj->fsvi", r, torch.from_numpy(m.vertices)) + t[:, :, None]
     assert torch.allclose(z, world[..., 2].min(-1).values)
+
+
+def test_where_computes_only_the_entries_asked_for():
+    """``where`` leaves the other (frame, pair) entries at -inf and the asked ones as without it."""
+    cube = np.array([[x, y, z] for x in (-0.05, 0.05) for y in (-0.05, 0.05) for z in (-0.05, 0.05)])
+    m = _model(cube, cube)
+    gaps = torch.tensor([0.08, 0.12, 0.09, 0.5], dtype=torch.float64)  # 2 cm in, 2 cm apart, 1 cm in, far
+    pos = torch.zeros(4, 2, 3, dtype=torch.float64)
+    pos[:, 1, 0] = gaps
+    eye = torch.eye(3, dtype=torch.float64).expand(4, 2, 3, 3)
+    full = pair_depths(m, pos, eye)
+    where = torch.tensor([[True], [False], [True], [False]])
+    part = pair_depths(m, pos, eye, where=where)
+    assert torch.equal(part[where], full[where]) and bool(torch.isinf(part[~where]).all()) and bool((part[~where] < 0).all())
+    assert float(full[0, 0]) == pytest.approx(0.02, abs=1e-9) and float(full[2, 0]) == pytest.approx(0.01, abs=1e-9)

@@ -148,3 +148,56 @@ def test_joint_speed_term_gradient_and_coupling():
     active = torch.tensor([1.0, 0.0, 1.0, 0.0]) * 2.0
     assert torch.allclose(off[0, :, j], -active.to(off.dtype)) and torch.allclose(diag[0, 1:-1, j], (active[1:] + active[:-1]).to(diag.dtype))
     assert phys.speed_cost(qd * 0, P.cols).sum() == 0
+
+
+def test_held_frames_stay_and_the_rest_is_solved():
+    """``coupled_lm_ik(hold=...)``: held frames come back bit for bit; the free ones move to the goals."""
+    from mer_models.batch import batch_fk
+    from mer_models.solver.ik import coupled_lm_ik
+
+    s = load_robot("h1").skeleton
+    T, J = 20, s.num_nodes
+    eta = torch.from_numpy(joint_map(s, s))[None].float()
+    g = graph_from_batch(collate([TrainingSample(np.zeros((3, J, 9), np.float32), s, s, joint_map(s, s))]), "tgt", "cpu")
+    rng = np.random.default_rng(1)
+    want = torch.from_numpy(rng.uniform(s.lower, s.upper) * 0.3).float()[None, None].expand(1, T, J).clone()
+    base_pos = torch.tensor([0.0, 0.0, 1.0]).expand(1, T, 3).clone()
+    base_rot = torch.eye(3).expand(1, T, 3, 3).clone()
+    goal = batch_fk(g, want, base_pos, base_rot)[0]
+    q0 = g.nominal[:, None].expand(1, T, J).clone()
+    hold = torch.zeros(1, T, dtype=torch.bool)
+    hold[0, :5] = hold[0, 15:] = True
+    q, p, r = coupled_lm_ik(EnergyConfig(), g, eta, goal, q0, base_pos, base_rot, iters=5, hold=hold)
+    assert torch.equal(q[hold], q0[hold]) and torch.equal(p[hold], base_pos[hold]) and torch.equal(r[hold], base_rot[hold])
+    err = lambda x: float((batch_fk(g, x, base_pos, base_rot)[0] - goal)[0, 5:15].norm(dim=-1).mean())  # noqa: E731
+    assert err(q) < 0.5 * err(q0)
+
+
+def test_the_repair_moves_only_frames_near_a_contact():
+    """:meth:`PhysicsInputs.repair` on TALOS standing, its feet through each other in frames 10-11
+    and its body sunk into the floor in frames 30-31 of 40: the pair it found is looked for, and
+    frames are freed, only within ``repair_reach`` of them."""
+    from mer_data.kinematics.collision import shape_points
+    from mer_models.batch import batch_fk
+
+    r = load_robot("talos")
+    s, m = r.skeleton, collision_model(r)
+    T, J = 40, s.num_nodes
+    g = graph_from_batch(collate([TrainingSample(np.zeros((3, J, 9), np.float32), s, s, joint_map(s, s))]), "tgt", "cpu")
+    q = g.nominal[:, None].expand(1, T, J).clone().double()
+    hip = [s.node_names.index(n) for n in s.node_names if "leg_left_2" in n or "leg_right_2" in n]  # the hip rolls
+    assert len(hip) == 2
+    q[0, 10:12, hip[0]] = -0.35  # both legs swung in: the feet through each other
+    q[0, 10:12, hip[1]] = 0.35
+    eye = torch.eye(3, dtype=torch.float64).expand(1, T, 3, 3)
+    rest, rrot = batch_fk(g, q[:, :1], torch.zeros(1, 1, 3, dtype=torch.float64), eye[:, :1])
+    base = torch.zeros(1, T, 3, dtype=torch.float64)
+    base[..., 2] = -float(shape_points(m, rest, rrot)[..., 2].min()) + 0.001  # standing: the soles on the floor
+    base[0, 30:32, 2] -= 0.3  # sunk: shins and knees in the floor
+    pos, rot = batch_fk(g, q, base, eye)
+    for touch, want in ((None, list(range(7, 15))), (0.0, list(range(7, 15)) + list(range(27, 35)))):
+        rows, terms = PhysicsInputs(m, None, 30.0, PhysicsConfig(repair_reach=3, repair_touch=touch)).repair(pos, rot)
+        assert rows.tolist() == [0]
+        assert (~terms.held_frames()[0]).nonzero().flatten().tolist() == want
+        mask = terms.pair_mask
+        assert mask.shape[:2] == (1, T) and not bool(mask[0, :7].any()) and not bool(mask[0, 15:].any())
