@@ -150,3 +150,33 @@ def check_mcap(path: str | Path) -> dict[str, int]:
             _decode_base64(data, schema, ch.topic)
             counts[ch.topic] += 1
     return counts
+
+
+def mcap_messages(path: str | Path) -> dict[str, list[tuple[int, dict]]]:
+    """Every JSON message of an MCAP by topic, in order: (log time [ns], decoded message)."""
+    out: dict[str, list[tuple[int, dict]]] = {}
+    with open(path, "rb") as f:
+        for _, ch, msg in make_reader(f).iter_messages():
+            out.setdefault(ch.topic, []).append((msg.log_time, json.loads(msg.data)))
+    return out
+
+
+def tf_world(tfs: list[dict], frame: str):
+    """world <- ``frame`` (4, 4) composed, as a viewer does, from the transforms of one
+    ``foxglove.FrameTransforms`` message (unit quaternions x, y, z, w)."""
+    import numpy as np
+
+    by_child = {t["child_frame_id"]: t for t in tfs}
+    out = np.eye(4)
+    while frame in by_child:
+        t = by_child[frame]
+        x, y, z, w = (t["rotation"][k] for k in "xyzw")
+        m = np.eye(4)
+        m[:3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]  # fmt: skip
+        m[:3, 3] = [t["translation"][k] for k in "xyz"]
+        out = m @ out
+        frame = t["parent_frame_id"]
+    assert frame == "world", f"the chain of frames ends at {frame!r}, not world"
+    return out

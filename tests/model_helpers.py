@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -35,6 +36,13 @@ def synthetic_csv(path, robot: str = "g1", frames: int = 90, seed: int = 0):
     m = synthetic_motion(s, frames, seed=seed)
     rot = quat_to_matrix(torch.from_numpy(m["base_quat"])).numpy()
     return write_csv(path, TargetMotion(s, 30.0, m["q"], m["base_pos"], rot))
+
+
+def synthetic_folder(root: Path, clips: dict[str, int], robot: str = "g1") -> Path:
+    """A LAFAN1-layout folder ``root/<robot>/<clip>.csv`` of seeded synthetic clips (clip -> frames)."""
+    for k, (clip, n) in enumerate(clips.items()):
+        synthetic_csv(root / robot / f"{clip}.csv", robot, frames=n, seed=k)
+    return root
 
 
 def synthetic_window(source: str = "g1", frames: int = 60, seed: int = 0) -> np.ndarray:

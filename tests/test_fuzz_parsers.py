@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from fuzz_stats import STATS
+from hostile_files import lzf_bomb, lzf_compress, replace_pos
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from urdf_factory import humanoid
@@ -521,63 +522,16 @@ def test_fuzz_hdf5_shard_datasets(data, shard_files, tmp_path_factory):
 # ---- HDF5 filters and attributes from strangers (issue 41): LZF and deflate bombs, filter orders ----
 
 
-def _lzf(fn: str):
-    import ctypes
-
-    import h5py
-
-    f = getattr(ctypes.CDLL(h5py.h5z.__file__), fn)
-    f.argtypes = [ctypes.c_char_p, ctypes.c_uint, ctypes.c_void_p, ctypes.c_uint]
-    f.restype = ctypes.c_uint
-    return f
-
-
-def lzf_compress(data: bytes) -> bytes:
-    import ctypes
-
-    out = ctypes.create_string_buffer(len(data) + 64)
-    n = _lzf("lzf_compress")(data, len(data), out, len(out))
-    assert n, "incompressible"
-    return out.raw[:n]
-
-
-def lzf_bomb(n_out: int) -> bytes:
-    """An LZF stream of ``n_out`` zero bytes at LZF's best ratio (3 bytes -> 264)."""
-    return b"\x00\x00" + b"\xe0\xff\x00" * (-(-(n_out - 1) // 264))
-
-
 _PIPELINES = [("lzf",), ("shuffle", "lzf"), ("gzip",), ("shuffle", "gzip"), ("lzf", "fletcher32"), ("gzip", "lzf"),
               ("lzf", "shuffle"), ("shuffle", "gzip", "fletcher32"), ("scaleoffset",), ("nbit",)]  # fmt: skip
 
 
 def _replace_pos(path: Path, pipeline: tuple[str, ...], payload: bytes | None, chunk_rows: int = 1) -> None:
-    """Replace dataset ``pos`` by one with the filters of ``pipeline`` (in order), chunks of
-    ``chunk_rows`` rows (more than it has: it is extensible) and ``payload`` as the stored bytes of
-    its first chunk (None: nothing stored)."""
+    """:func:`hostile_files.replace_pos` on the shard file at ``path``."""
     import h5py
 
     with h5py.File(path, "r+") as f:
-        shape = f["pos"].shape
-        del f["pos"]
-        dcpl = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
-        dcpl.set_chunk((chunk_rows,) + shape[1:])
-        for name in pipeline:
-            if name == "lzf":
-                dcpl.set_filter(32000, h5py.h5z.FLAG_OPTIONAL, (4, 261, chunk_rows * int(np.prod(shape[1:])) * 4))
-            elif name == "gzip":
-                dcpl.set_deflate(4)
-            elif name == "shuffle":
-                dcpl.set_shuffle()
-            elif name == "fletcher32":
-                dcpl.set_fletcher32()
-            elif name == "scaleoffset":
-                dcpl.set_scaleoffset(h5py.h5z.SO_FLOAT_DSCALE, 3)
-            elif name == "nbit":
-                dcpl.set_filter(h5py.h5z.FILTER_NBIT, h5py.h5z.FLAG_OPTIONAL, ())
-        space = h5py.h5s.create_simple(shape, (h5py.h5s.UNLIMITED,) + shape[1:])
-        d = h5py.h5d.create(f.id, b"pos", h5py.h5t.IEEE_F32LE, space, dcpl=dcpl)
-        if payload is not None:
-            d.write_direct_chunk((0,) * len(shape), payload, 0)
+        replace_pos(f, pipeline, payload, chunk_rows)
 
 
 @fuzz_settings(40)

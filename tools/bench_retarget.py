@@ -69,7 +69,7 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--threads", type=int, default=2, help="torch.set_num_threads and OMP/BLAS threads")
     ap.add_argument("--omp-wait", choices=["passive", "active"], default="passive",
                     help="OMP_WAIT_POLICY (default passive, as mer's commands set it: spinning threads starve each other "
-                    "on a shared machine; mer_models.retarget.workers.passive_omp)")  # fmt: skip
+                    "on a shared machine; mer_models.cli.main)")  # fmt: skip
     ap.add_argument("--dataset-clips", type=int, default=4,
                     help="also time a dataset of the first N clips x --targets: batched (mer retarget --input) "
                     "against one file at a time (retarget_file), same outputs; 0 skips it")  # fmt: skip

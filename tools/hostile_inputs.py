@@ -37,6 +37,7 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
 import h5py  # noqa: E402
 import numpy as np  # noqa: E402
+from hostile_files import lzf_bomb, replace_pos, write_teacher  # noqa: E402
 
 PROBE = r'''
 import json, os, sys, time, traceback
@@ -158,61 +159,6 @@ def _replace(f, name, **kw):
     f.create_dataset(name, **kw)
 
 
-def _lzf_fn(name: str):
-    import ctypes
-
-    fn = getattr(ctypes.CDLL(h5py.h5z.__file__), name)
-    fn.argtypes = [ctypes.c_char_p, ctypes.c_uint, ctypes.c_void_p, ctypes.c_uint]
-    fn.restype = ctypes.c_uint
-    return fn
-
-
-def lzf_bomb(n_out: int) -> bytes:
-    return b"\x00\x00" + b"\xe0\xff\x00" * (-(-(n_out - 1) // 264))
-
-
-def _pos_with(f, filters: list[str], payload: bytes | None, chunk_rows: int = 1) -> None:
-    shape = f["pos"].shape
-    del f["pos"]
-    dcpl = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
-    dcpl.set_chunk((chunk_rows,) + shape[1:])
-    for name in filters:
-        if name == "lzf":
-            dcpl.set_filter(32000, h5py.h5z.FLAG_OPTIONAL, (4, 261, chunk_rows * int(np.prod(shape[1:])) * 4))
-        elif name == "gzip":
-            dcpl.set_deflate(4)
-        elif name == "shuffle":
-            dcpl.set_shuffle()
-        elif name == "scaleoffset":
-            dcpl.set_scaleoffset(h5py.h5z.SO_FLOAT_DSCALE, 3)
-        elif name == "nbit":
-            dcpl.set_filter(h5py.h5z.FILTER_NBIT, h5py.h5z.FLAG_OPTIONAL, ())
-    space = h5py.h5s.create_simple(shape, (h5py.h5s.UNLIMITED,) + shape[1:])
-    d = h5py.h5d.create(f.id, b"pos", h5py.h5t.IEEE_F32LE, space, dcpl=dcpl)
-    if payload is not None:
-        d.write_direct_chunk((0,) * len(shape), payload, 0)
-
-
-def _teacher(shard: Path, build: str | None = None, **edits) -> None:
-    from mer_data.shards import open_shard
-    from mer_data.shards.teacher import TEACHER_FORMAT, TEACHER_VERSION, teacher_path
-
-    meta = open_shard(shard).meta
-    path = teacher_path(shard)
-    path.parent.mkdir(exist_ok=True)
-    R, S, T, J = meta.num_rows, meta.samples_per_row, meta.window, meta.max_target_nodes
-    schema = {"q": ("<f4", (R, S, T, J)), "base_pos": ("<f4", (R, S, T, 3)), "base_rotvec": ("<f4", (R, S, T, 3)),
-              "energy": ("<f4", (R, S)), "solved": ("|b1", (R, S))}  # fmt: skip
-    with h5py.File(path, "w") as f:
-        for name, (dtype, shape) in schema.items():
-            a = np.ones(shape, bool) if name == "solved" else np.zeros(shape, dtype)
-            if name in edits:
-                a = edits[name](a)
-            f.create_dataset(name, data=a)
-        f.attrs.update({"format": TEACHER_FORMAT, "format_version": TEACHER_VERSION, "shard_build_id": build or meta.build_id,
-                        "solver": "{}", "seconds": 1.0, "frames": 1, "rows": R})  # fmt: skip
-
-
 def _edit_array(name: str, fn):
     def edit(f, p):
         a = f[name][...]
@@ -275,20 +221,20 @@ def hdf5_classes(c: Cases) -> dict[str, list[dict]]:
         def e(f, p):
             z, block = zlib.compressobj(9), bytes(1 << 20)  # ``real`` zeros, streamed
             payload = b"".join(z.compress(block) for _ in range(max(real >> 20, 1))) + z.flush()
-            _pos_with(f, ["shuffle", "gzip"], payload, chunk_rows=declared_rows)
+            replace_pos(f, ["shuffle", "gzip"], payload, chunk_rows=declared_rows)
 
         return e
 
     def lzf(declared_rows: int, real: int):
         def e(f, p):
             b = lzf_bomb(real)
-            _pos_with(f, ["shuffle", "lzf"], b[: declared_rows * row], chunk_rows=declared_rows)
+            replace_pos(f, ["shuffle", "lzf"], b[: declared_rows * row], chunk_rows=declared_rows)
 
         return e
 
     def pipeline(filters):
         def e(f, p):
-            _pos_with(f, filters, None)
+            replace_pos(f, filters, None)
 
         return e
 
@@ -385,7 +331,7 @@ def hdf5_classes(c: Cases) -> dict[str, list[dict]]:
                       ("NaN energy", {"energy": lambda a: (a.__setitem__((0, 0), np.nan), a)[1]}),
                       ("another shape", {"q": lambda a: a[:, :, :, :5]})):  # fmt: skip
         p = c.copy()
-        _teacher(p, **kw)
+        write_teacher(p, **kw)
         teachers.append({"label": label, "action": "teacher", "args": {"path": str(p)}})
     cls["Teacher files"] = teachers
     return cls

@@ -44,13 +44,17 @@ __all__ = [
     "check_repo_path",
     "check_ref",
     "check_repo_id",
+    "COMMIT_RE",
+    "is_repo_id",
+    "is_ref",
     "storage_folder",
     "download_blob",
     "install_blob",
     "checked_snapshot",
 ]
 
-_COMMIT = re.compile(r"^[0-9a-f]{40}$")
+#: a full commit id: 40 lower-case hex digits
+COMMIT_RE = _COMMIT = re.compile(r"^[0-9a-f]{40}$")
 _CONTENT_ID = re.compile(r"^(?:[0-9a-f]{40}|[0-9a-f]{64})$")
 _COMPONENT = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9._+=@ -]{0,254}$")
 _REF_COMPONENT = re.compile(r"^[A-Za-z0-9_-][A-Za-z0-9._-]{0,63}$")
@@ -111,19 +115,31 @@ def check_repo_path(name: object, error: type[MerError], what: str) -> str:
     return name
 
 
-def check_repo_id(repo_id: object, error: type[MerError]) -> str:
-    """A repository id ``ORG/NAME`` (the Hub's character rules): it becomes a URL and a cache folder."""
+def is_repo_id(repo_id: object) -> bool:
+    """``ORG/NAME`` by the Hub's character rules for each half (no "--" or "..", no leading or
+    trailing "-" or ".", at most 96 characters), not ending in ``.git``."""
     parts = repo_id.split("/") if isinstance(repo_id, str) else []
-    if len(parts) != 2 or not all(_REPO_PART.match(p) for p in parts) or str(repo_id).endswith(".git"):
+    return len(parts) == 2 and all(_REPO_PART.match(p) for p in parts) and not str(repo_id).endswith(".git")
+
+
+def is_ref(revision: object) -> bool:
+    """A git ref name, restricted: components of ``[A-Za-z0-9._-]`` separated by single "/", none
+    starting with "." or ending with ".lock", no "..", at most 128 characters (a commit id is one too)."""
+    comps = revision.split("/") if isinstance(revision, str) else [""]
+    return (isinstance(revision, str) and len(revision) <= 128 and all(_REF_COMPONENT.match(c) for c in comps)
+            and not any(".." in c or c.endswith(".lock") for c in comps))  # fmt: skip
+
+
+def check_repo_id(repo_id: object, error: type[MerError]) -> str:
+    """A repository id ``ORG/NAME`` (:func:`is_repo_id`): it becomes a URL and a cache folder."""
+    if not is_repo_id(repo_id):
         raise error(f"invalid Hub repository id {_shown(repo_id)}", fix="write OWNER/NAME of letters, digits, '-', '_' and '.'")
     return str(repo_id)
 
 
 def check_ref(revision: str, error: type[MerError], what: str) -> str:
     """A revision (a commit id or a branch/tag name of plain components): it becomes ``refs/<revision>``."""
-    comps = revision.split("/") if isinstance(revision, str) else [""]
-    if not (isinstance(revision, str) and len(revision) <= 128 and all(_REF_COMPONENT.match(c) for c in comps)
-            and not any(".." in c or c.endswith(".lock") for c in comps)):  # fmt: skip
+    if not is_ref(revision):
         raise error(
             f"{what}: invalid revision {_shown(revision)}",
             fix="pass a 40-hex commit id or a branch/tag name of letters, digits, '.', '_', '-' and single '/'",

@@ -87,8 +87,9 @@ def _unknown(parser: argparse.ArgumentParser, extra: list[str]) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit status (0 ok, 1 refused input, 2 usage, 130 interrupted)."""
-    # torch's OpenMP threads spin while they wait; on a shared machine they starve each other (300
-    # frames G1 -> H1: 4.8-23 s spinning, 0.5 s passive, at load 5 on 2 cores). Before torch loads.
+    # torch's OpenMP threads spin while they wait; on a shared machine (or beside --workers) they
+    # starve each other (300 frames G1 -> H1: 4.8-23 s spinning, 0.5 s passive, at load 5 on 2
+    # cores). It takes effect only before torch's OpenMP runtime starts: here, before any import of torch.
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)

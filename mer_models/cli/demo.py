@@ -68,9 +68,6 @@ def write_synthetic_input(folder: Path, robots: list[str], *, seconds: float = 8
 
 
 def cmd_demo(args) -> int:
-    from mer_models.retarget.workers import passive_omp
-
-    passive_omp()  # before torch loads
     from mer_data.robots.example import EXAMPLE_ROBOT
     from mer_data.robots.registry import BUILTIN_ROBOTS
     from mer_data.shards import BuildConfig, ShardDataset, build_shards, format_inspection, inspect_shards

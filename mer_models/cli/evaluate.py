@@ -51,9 +51,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_evaluate(args) -> int:
-    from mer_models.retarget.workers import passive_omp
-
-    passive_omp()  # before torch loads
     from mer_data.base.atomic import atomic_write
     from mer_models.retarget.evaluate import EvalOptions, evaluate, format_table
     from mer_models.zoo.checkpoint import resolve_model

@@ -115,9 +115,6 @@ def resolve_source(args, path) -> None:
 
 
 def cmd_retarget(args) -> int:
-    from mer_models.retarget.workers import passive_omp
-
-    passive_omp()  # before torch loads
     from mer_data.base.errors import MerError
     from mer_data.motion.sources import BVH_SOURCE
 

@@ -37,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
     from mer_data.base.errors import MerError
     from mer_data.motion.sources import is_bvh_source, read_source
     from mer_data.robots.registry import as_robot
-    from mer_models.export.viewer import require_viser, scaled_reference, serve_motion
+    from mer_models.export.viewer import require_viser, serve_motion
 
     require_viser()  # before any reading: the one thing a first try lacks
     from mer_models.export.geometry import robot_meshes
@@ -56,7 +56,12 @@ def run(args: argparse.Namespace) -> int:
             raise MerError(f"the reference has {len(feats)} frames at 30 Hz, the motion {motion.num_frames}: it is not the "
                            "motion this one was retargeted from", path=args.reference,
                            fix="give the retarget's own INPUT (and --reference-fps / --fps where they were not 30 Hz)")  # fmt: skip
-        points, nodes = scaled_reference(feats, src.skeleton, robot.skeleton)
+        from mer_data.kinematics.jointmap import joint_map
+        from mer_models.retarget.long_horizon import prepare_reference
+
+        _, scaled, shift, _ = prepare_reference(feats, src.skeleton, robot.skeleton)  # as the retarget scaled it
+        nodes = scaled + shift
+        points = nodes[:, joint_map(robot.skeleton, src.skeleton).any(0)]  # the key points the energy tracks
         ref_skel = src.skeleton
     meshes = robot_meshes(robot, mesh_dir=args.meshes, visual=not args.collision, max_faces=VIEWER_MAX_FACES)
     viewer = serve_motion(motion, robot=robot, meshes=meshes, reference_points=points, reference_nodes=nodes,

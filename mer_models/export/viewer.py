@@ -38,7 +38,7 @@ from .writers import TargetMotion, check_motion_finite
 
 log = logging.getLogger(__name__)
 
-__all__ = ["VIEWER_INSTALL", "VIEWER_MAX_FACES", "require_viser", "MotionViewer", "serve_motion", "scaled_reference"]
+__all__ = ["VIEWER_INSTALL", "VIEWER_MAX_FACES", "require_viser", "MotionViewer", "serve_motion"]
 
 #: How to install the viewer's package.
 VIEWER_INSTALL = 'pip install "mer[viewer]"  (or: pip install viser)'
@@ -58,23 +58,6 @@ def require_viser():
     except ImportError:
         raise MerError("the viewer needs the viser package, which is not installed", fix=VIEWER_INSTALL) from None
     return viser
-
-
-def scaled_reference(features: np.ndarray, source: Skeleton, target: Skeleton) -> tuple[np.ndarray, np.ndarray]:
-    """The reference as retargeting tracks it: (F, K, 3) key points and (F, Jr, 3) every node of the
-    source motion's ``features`` (F, Jr, 9) scaled to ``target`` [m], world frame (the first frame's
-    base x, y kept, as :func:`mer_models.retarget.long_horizon.prepare_reference` and the retarget's
-    ``reference_points`` do)."""
-    from mer_data.kinematics.jointmap import joint_map
-    from mer_data.motion.samples import reference_goals
-
-    feats = np.asarray(features, np.float64).copy()
-    shift = np.array([feats[0, 0, 3], feats[0, 0, 4], 0.0])
-    feats[:, 0, 3:6] -= shift
-    feats[:, 1:, 1:4] -= shift
-    scaled, _, _ = reference_goals(feats, source, target)
-    pairs = np.flatnonzero(joint_map(target, source).any(0))
-    return scaled[:, pairs] + shift, scaled + shift
 
 
 def _wxyz(rot: np.ndarray) -> np.ndarray:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import re
 
 from mer_data.base.errors import ModelZooError
+from mer_data.base.hub_files import COMMIT_RE, is_ref, is_repo_id
 
 __all__ = [
     "COMMIT_RE",
@@ -25,13 +26,6 @@ __all__ = [
 
 # Lower-case, starts with a letter or digit; dots only inside (never "..").
 _NAME = re.compile(r"^[a-z0-9](?:[a-z0-9_-]|\.(?!\.)){0,62}[a-z0-9]$|^[a-z0-9]$")
-# The Hub's rule for each half of ``org/name``: letters, digits, "-", "_", "."; no "--" or ".."; no
-# leading/trailing "-" or "."; at most 96 characters.
-_REPO_PART = re.compile(r"^[A-Za-z0-9](?:[A-Za-z0-9_]|[-.](?![-.])){0,94}[A-Za-z0-9_]$|^[A-Za-z0-9]$")
-COMMIT_RE = re.compile(r"^[0-9a-f]{40}$")
-# A git ref name, restricted: components of [A-Za-z0-9._-] separated by single "/", no component
-# starting with "." or ending with ".lock", no "..", at most 128 characters.
-_REF_COMPONENT = re.compile(r"^[A-Za-z0-9_-][A-Za-z0-9._-]{0,63}$")
 _FILE_COMPONENT = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9._-]{0,127}$")
 # File types the zoo will ever download: data only, never code or pickles.
 SAFE_SUFFIXES = (".json", ".safetensors", ".md", ".jsonl")
@@ -51,8 +45,7 @@ def validate_model_name(name: str) -> str:
 
 def validate_repo_id(repo_id: str) -> str:
     """A Hub model repo id ``org/name`` (the Hub's own character rules, no ``..`` or ``--``)."""
-    parts = repo_id.split("/") if isinstance(repo_id, str) else []
-    if len(parts) != 2 or not all(_REPO_PART.match(p) for p in parts) or repo_id.endswith(".git"):
+    if not is_repo_id(repo_id):
         raise ModelZooError(
             f"invalid Hub repo id {repo_id!r}",
             element="repo_id",
@@ -72,14 +65,7 @@ def validate_revision(revision: str) -> str:
         raise ModelZooError("empty revision", element="revision", fix="pass a 40-hex commit id or a branch/tag name")
     if is_commit(revision):
         return revision
-    comps = revision.split("/")
-    ok = (
-        len(revision) <= 128
-        and all(_REF_COMPONENT.match(c) for c in comps)
-        and not any(c.endswith(".lock") or ".." in c for c in comps)
-        and not (len(revision) == 40 and re.fullmatch(r"[0-9a-fA-F]{40}", revision))  # upper-case "commit"
-    )
-    if not ok:
+    if not is_ref(revision) or re.fullmatch(r"[0-9a-fA-F]{40}", revision):  # an upper-case "commit" is neither
         raise ModelZooError(
             f"invalid revision {revision!r}",
             element="revision",

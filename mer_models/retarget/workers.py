@@ -19,7 +19,7 @@ from typing import Any, Callable, Iterable, Iterator, Sequence
 
 log = logging.getLogger(__name__)
 
-__all__ = ["available_cores", "one_thread", "passive_omp", "run_tasks"]
+__all__ = ["available_cores", "one_thread", "run_tasks"]
 
 _STATE: dict[str, Any] = {}  # a worker's shared setup (set once per process by _init)
 
@@ -30,21 +30,6 @@ def available_cores() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # macOS, Windows
         return max(1, os.cpu_count() or 1)
-
-
-def passive_omp() -> None:
-    """OpenMP threads that sleep, not spin, while they wait (``OMP_WAIT_POLICY=PASSIVE`` unless set),
-    for a command about to load torch. torch's threads spin by default; where other processes use
-    the cores (a shared machine, several workers) the spinning threads starve the working ones:
-    300 frames of G1 -> H1 took 4.8-23 s on 2 threads against 0.5 s on one, at a load of 6 on 2
-    cores; passive, 0.45 s. It acts only before torch's OpenMP runtime starts (the first import
-    of torch)."""
-    import sys
-
-    if "torch" in sys.modules:
-        log.debug("torch already loaded: OMP_WAIT_POLICY left as it is")
-        return
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 
 @contextlib.contextmanager

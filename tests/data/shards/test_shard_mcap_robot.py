@@ -5,44 +5,15 @@
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
-import torch
-from foxglove_viewer import check_mcap
+from foxglove_viewer import check_mcap, mcap_messages, tf_world
 from lxml import etree
-from mcap.reader import make_reader
 from shard_helpers import build, make_input, shard_arrays
 
-from mer_data.kinematics.rotations import quat_to_matrix
 from mer_data.robots.registry import load_robot
 
 pytest.importorskip("jsonschema", reason="jsonschema validates the MCAP messages (pip install -e '.[dev]')")
-
-
-def _messages(path) -> dict[str, list[tuple[int, dict]]]:
-    out: dict[str, list[tuple[int, dict]]] = {}
-    with open(path, "rb") as f:
-        for _, ch, msg in make_reader(f).iter_messages():
-            out.setdefault(ch.topic, []).append((msg.log_time, json.loads(msg.data)))
-    return out
-
-
-def _world(tfs: list[dict], frame: str) -> np.ndarray:
-    """world <- frame (4, 4) composed from one FrameTransforms message."""
-    by_child = {t["child_frame_id"]: t for t in tfs}
-    out = np.eye(4)
-    while frame in by_child:
-        t = by_child[frame]
-        q = t["rotation"]
-        m = np.eye(4)
-        m[:3, :3] = quat_to_matrix(torch.tensor([q["w"], q["x"], q["y"], q["z"]], dtype=torch.float64)).numpy()
-        m[:3, 3] = [t["translation"][k] for k in "xyz"]
-        out = m @ out
-        frame = t["parent_frame_id"]
-    assert frame == "world"
-    return out
 
 
 def test_shard_tf_frames_are_the_urdf_links_at_the_windows_joints(tmp_path):
@@ -51,7 +22,7 @@ def test_shard_tf_frames_are_the_urdf_links_at_the_windows_joints(tmp_path):
     (path,) = sorted((tmp_path / "out").glob("*.mcap"))
     counts = check_mcap(path)  # every message against its embedded schema
     assert counts["/skeleton"] == counts["/robot"] == counts["/robot_description"] == 1
-    msgs = _messages(path)
+    msgs = mcap_messages(path)
     robot = load_robot("g1")
     urdf = msgs["/robot_description"][0][1]["data"]
     assert urdf == robot.urdf_path.read_text()
@@ -72,7 +43,7 @@ def test_shard_tf_frames_are_the_urdf_links_at_the_windows_joints(tmp_path):
     err = 0.0
     for f in (0, window // 2, window - 1):
         for j in joints:
-            origin = _world(tf[f][1]["transforms"], skel.link_names[j])[:3, 3]
+            origin = tf_world(tf[f][1]["transforms"], skel.link_names[j])[:3, 3]
             err = max(err, float(np.abs(origin - cols["pos"][0, f, j]).max()))
     assert err < 2e-5, err  # JSON rounding (1e-6 m) and the column's float32
 

@@ -21,10 +21,11 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from hostile_files import write_teacher
 
 from mer_data.base.errors import MerError, ShardFormatError
 from mer_data.shards import BuildConfig, ShardDataset, build_shards, open_shard
-from mer_data.shards.teacher import TEACHER_FORMAT, TEACHER_VERSION, teacher_path
+from mer_data.shards.teacher import teacher_path
 
 REPO = Path(__file__).resolve().parents[3]
 
@@ -174,35 +175,16 @@ def test_compression_bombs_are_refused_without_inflating(valid, tmp_path):
         assert ("inflates" if label == "fits" else "stored in") in str(ei.value)
 
 
-def _teacher(shard: Path, **edits) -> Path:
-    """A complete teacher file of ``shard`` (zeros), with ``edits`` applied as name -> fn(array)."""
-    meta = open_shard(shard).meta
-    path = teacher_path(shard)
-    path.parent.mkdir(exist_ok=True)
-    R, S, T, J = meta.num_rows, meta.samples_per_row, meta.window, meta.max_target_nodes
-    schema = {"q": ("<f4", (R, S, T, J)), "base_pos": ("<f4", (R, S, T, 3)), "base_rotvec": ("<f4", (R, S, T, 3)),
-              "energy": ("<f4", (R, S)), "solved": ("|b1", (R, S))}  # fmt: skip
-    with h5py.File(path, "w") as f:
-        for name, (dtype, shape) in schema.items():
-            a = np.ones(shape, bool) if name == "solved" else np.zeros(shape, dtype)
-            if name in edits:
-                edits[name](a)
-            f.create_dataset(name, data=a)
-        f.attrs.update({"format": TEACHER_FORMAT, "format_version": TEACHER_VERSION, "shard_build_id": meta.build_id,
-                        "solver": "{}", "seconds": 1.0, "frames": 1, "rows": meta.num_rows})  # fmt: skip
-    return path
-
-
 def test_teacher_nan_angles_and_wrong_shape_are_refused(valid, tmp_path):
     p = _copy(valid["hdf5"], tmp_path / "nan")
-    _teacher(p, q=lambda a: a.__setitem__((2, 1, 0, 3), np.nan))
+    write_teacher(p, q=lambda a: a.__setitem__((2, 1, 0, 3), np.nan))
     with pytest.raises(ShardFormatError, match="'q'") as ei:
         ds = ShardDataset(p, teacher=True)
         for i in range(len(ds)):
             ds[i]
     assert "row 2" in str(ei.value)
     p = _copy(valid["hdf5"], tmp_path / "energy")
-    _teacher(p, energy=lambda a: a.__setitem__((0, 0), np.nan))
+    write_teacher(p, energy=lambda a: a.__setitem__((0, 0), np.nan))
     with pytest.raises(ShardFormatError, match="energy"):
         ShardDataset(p, teacher=True)
 

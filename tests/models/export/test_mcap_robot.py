@@ -8,14 +8,11 @@ qpos from the same motion's npz, each link's pose from ``mj_kinematics``.
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
 import torch
-from foxglove_viewer import check_mcap
+from foxglove_viewer import check_mcap, mcap_messages, tf_world
 from lxml import etree
-from mcap.reader import make_reader
 
 from mer_data.kinematics.rotations import quat_to_matrix
 from mer_data.robots.registry import load_robot
@@ -24,30 +21,6 @@ from mer_models.training.synthetic import synthetic_motion
 
 mujoco = pytest.importorskip("mujoco", reason="MuJoCo computes the links' poses (pip install -e .)")
 pytest.importorskip("jsonschema", reason="jsonschema validates the MCAP messages (pip install -e '.[dev]')")
-
-
-def _messages(path) -> dict[str, list[dict]]:
-    out: dict[str, list[dict]] = {}
-    with open(path, "rb") as f:
-        for _, ch, msg in make_reader(f).iter_messages():
-            out.setdefault(ch.topic, []).append(json.loads(msg.data))
-    return out
-
-
-def _compose(tfs: list[dict], frame: str) -> np.ndarray:
-    """world <- frame (4, 4) from one FrameTransforms message."""
-    by_child = {t["child_frame_id"]: t for t in tfs}
-    out = np.eye(4)
-    while frame in by_child:
-        t = by_child[frame]
-        q = t["rotation"]
-        m = np.eye(4)
-        m[:3, :3] = quat_to_matrix(torch.tensor([q["w"], q["x"], q["y"], q["z"]], dtype=torch.float64)).numpy()
-        m[:3, 3] = [t["translation"][k] for k in "xyz"]
-        out = m @ out
-        frame = t["parent_frame_id"]
-    assert frame == "world"
-    return out
 
 
 @pytest.mark.parametrize("name", ["g1", "talos"])  # talos: 14 locked joints, links behind them
@@ -59,14 +32,14 @@ def test_tf_frames_are_the_urdf_links_where_mujoco_puts_them(tmp_path, name):
     path = write_mcap(tmp_path / f"{name}.mcap", motion, reference_points=np.zeros((12, 2, 3)))
     counts = check_mcap(path)  # every message against its embedded schema
     assert counts == {"/tf": 12, "/skeleton": 1, "/robot": 1, "/robot_description": 1, "/reference": 12}
-    msgs = _messages(path)
-    urdf = msgs["/robot_description"][0]["data"]
+    msgs = mcap_messages(path)
+    urdf = msgs["/robot_description"][0][1]["data"]
     assert urdf == r.urdf_path.read_text()
     links = {el.get("name") for el in etree.fromstring(urdf.encode()).findall("link")}
-    frames = {t["child_frame_id"] for t in msgs["/tf"][0]["transforms"]}
+    frames = {t["child_frame_id"] for t in msgs["/tf"][0][1]["transforms"]}
     assert frames == links  # every URDF link is a frame, named as the link (no joint names, no prefix)
-    assert {e["frame_id"] for e in msgs["/robot"][0]["entities"]} <= frames
-    assert {e["frame_id"] for e in msgs["/skeleton"][0]["entities"]} <= frames
+    assert {e["frame_id"] for e in msgs["/robot"][0][1]["entities"]} <= frames
+    assert {e["frame_id"] for e in msgs["/skeleton"][0][1]["entities"]} <= frames
 
     root = etree.fromstring(urdf.encode())
     for el in root.xpath("//visual|//collision|//inertial|//mujoco"):
@@ -84,7 +57,7 @@ def test_tf_frames_are_the_urdf_links_where_mujoco_puts_them(tmp_path, name):
         data.qpos[:3], data.qpos[3:7], data.qpos[qadr] = z["body_pos_w"][f, 0], z["body_quat_w"][f, 0], z["joint_pos"][f]
         mujoco.mj_kinematics(model, data)
         for link in links:
-            t = _compose(msgs["/tf"][f]["transforms"], link)
+            t = tf_world(msgs["/tf"][f][1]["transforms"], link)
             b = model.body(link).id
             err = max(err, float(np.abs(t[:3, 3] - data.xpos[b]).max()), float(np.abs(t[:3, :3] - data.xmat[b].reshape(3, 3)).max()))
     assert err < 2e-5, err  # rounding of the JSON numbers (1e-6 m, 1e-7) and the npz's float32
@@ -96,5 +69,5 @@ def test_an_unregistered_skeleton_gets_its_nodes_links(tmp_path):
     motion = TargetMotion(s, 30.0, m["q"], m["base_pos"], quat_to_matrix(torch.from_numpy(m["base_quat"])).numpy())
     path = write_mcap(tmp_path / "a.mcap", motion)
     assert check_mcap(path) == {"/tf": 5, "/skeleton": 1}
-    frames = {t["child_frame_id"] for t in _messages(path)["/tf"][0]["transforms"]}
+    frames = {t["child_frame_id"] for t in mcap_messages(path)["/tf"][0][1]["transforms"]}
     assert frames == {s.link_names[j] for j in range(s.num_nodes) if s.node_kinds[j] != "site"}

@@ -15,7 +15,7 @@ import pytest
 from hub_server import FakeHub
 from hypothesis import given
 from hypothesis import strategies as st
-from model_helpers import micro_checkpoint, synthetic_csv  # noqa: F401 (fixture)
+from model_helpers import micro_checkpoint, synthetic_csv, synthetic_folder  # noqa: F401 (fixture)
 
 from mer_data.base.atomic import owner_tag
 from mer_data.base.errors import MerError
@@ -30,10 +30,7 @@ CLIPS = {"walk1_subject1": 150, "dance1_subject2": 90, "run1_subject2": 40}
 
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory) -> Path:
-    root = tmp_path_factory.mktemp("lafan") / "data"
-    for k, (clip, n) in enumerate(CLIPS.items()):
-        synthetic_csv(root / "g1" / f"{clip}.csv", "g1", frames=n, seed=k)
-    return root
+    return synthetic_folder(tmp_path_factory.mktemp("lafan") / "data", CLIPS)
 
 
 @given(n=st.integers(1, 2000), segment=st.integers(16, 600), context=st.integers(0, 20))

@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 import pytest
-from model_helpers import synthetic_csv
+from model_helpers import synthetic_folder
 
 from mer_models.cli import main
 from mer_models.retarget.dataset import _chunks, plan_jobs, retarget_dataset
@@ -18,10 +18,7 @@ CLIPS = {"walk1_subject1": 150, "dance1_subject2": 90, "run1_subject2": 40, "jum
 
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory) -> Path:
-    root = tmp_path_factory.mktemp("lafan") / "data"
-    for k, (clip, n) in enumerate(CLIPS.items()):
-        synthetic_csv(root / "g1" / f"{clip}.csv", "g1", frames=n, seed=k)
-    return root
+    return synthetic_folder(tmp_path_factory.mktemp("lafan") / "data", CLIPS)
 
 
 def _outputs(out: Path) -> dict[str, bytes | dict]:
