@@ -45,13 +45,16 @@ def synthetic_folder(root: Path, clips: dict[str, int], robot: str = "g1") -> Pa
     return root
 
 
-def synthetic_window(source: str = "g1", frames: int = 60, seed: int = 0) -> np.ndarray:
-    """(T, J, 9) float32 origin-normalized features of a synthetic motion of ``source``."""
+def synthetic_window(source: str = "g1", frames: int = 60, seed: int = 0, motion=synthetic_motion) -> np.ndarray:
+    """(T, J, 9) float32 origin-normalized features of a synthetic motion of ``source`` (``motion``:
+    the whole-body generator's windows, or ``sinusoid_motion`` where a test needs a gentle motion)."""
     s = get_skeleton(source)
-    return _origin_normalize(_features(s, synthetic_motion(s, frames, seed=seed), 30.0)).astype(np.float32)
+    return _origin_normalize(_features(s, motion(s, frames, seed=seed), 30.0)).astype(np.float32)
 
 
-def mixed_batch(targets=("g1", "h1", "tron1"), source="g1", frames=60, seed=0, augment_first=False) -> dict:
+def mixed_batch(
+    targets=("g1", "h1", "tron1"), source="g1", frames=60, seed=0, augment_first=False, motion=synthetic_motion
+) -> dict:
     """A collated batch: one synthetic window of ``source`` retargeted to each target."""
     ref = get_skeleton(source)
     samples = []
@@ -59,7 +62,7 @@ def mixed_batch(targets=("g1", "h1", "tron1"), source="g1", frames=60, seed=0, a
         tgt = get_skeleton(t)
         if augment_first and k == 0:
             tgt = tgt.with_link_scales(np.linspace(0.7, 1.4, tgt.num_nodes))
-        w = synthetic_window(source, frames, seed + k)
+        w = synthetic_window(source, frames, seed + k, motion)
         same = t == source and not (augment_first and k == 0)
         samples.append(TrainingSample(w, ref, tgt, joint_map(tgt, ref), w.copy() if same else None))
     return collate(samples)

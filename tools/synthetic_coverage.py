@@ -1,11 +1,13 @@
 """How much of LAFAN1 the synthetic motion generator covers (issue 11), per robot.
 
 For every actuated joint: the share of LAFAN1 angles (all clips of the robot) inside the synthetic
-range (min..max over the generated set); the same for the height (z) of every key point, the base
-speed [m/s] (3-D, central differences at 30 Hz) and the base height [m]. A second column uses the
-synthetic 0.5-99.5 % range instead of min..max (what most of the synthetic data spans, not a few
-frames). Also the joint jerk |d^3 q| [rad/frame^3] of both. Nothing is written: LAFAN1 is
-CC BY-NC-ND, only these figures are reported.
+range (min..max over the generated set); the same for the height (z) of every key point and for
+the base states: tilt [rad] (angle between the base's z axis and the world's), height [m], speed
+[m/s] (3-D and horizontal, central differences). A second column uses the synthetic 0.5-99.5 %
+range instead of min..max (what most of the synthetic data spans, not a few frames). For the base
+states also how much the two distributions overlap (histogram intersection, 1: identical) and
+their 5 / 50 / 95 % points. Also the joint jerk |d^3 q| [rad/frame^3] of both. Nothing is
+written: LAFAN1 is CC BY-NC-ND, only these figures are reported.
 
     python tools/synthetic_coverage.py [--data ../shared/data/lafan1] [--robots g1 h1]
                                        [--clips 200] [--seconds 20] [--seed 0] [--json]
@@ -29,10 +31,14 @@ from mer_data.motion.lafan1 import Motion, read_lafan1_csv  # noqa: E402
 from mer_data.robots.registry import get_skeleton  # noqa: E402
 from mer_data.skeleton import Skeleton  # noqa: E402
 from mer_data.synthesis import clip_seed, ground_heights, synthesize  # noqa: E402
+from mer_data.synthesis.quat import qmatrix  # noqa: E402
+
+#: Base-state rows: name -> histogram range for the overlap figure.
+BASE = {"base:tilt": (0.0, np.pi), "base:height": (0.0, 1.6), "base:speed": (0.0, 8.0), "base:speed_xy": (0.0, 8.0)}
 
 
 def quantities(skel: Skeleton, motions: list[Motion]) -> dict[str, np.ndarray]:
-    """Per-frame values pooled over ``motions``: ``joint:<name>``, ``kp:<key point>``, base speed and height."""
+    """Per-frame values pooled over ``motions``: ``joint:<name>``, ``kp:<key point>``, the base states of :data:`BASE`."""
     out: dict[str, list[np.ndarray]] = {}
     kps = skel.keypoint_nodes()
     for m in motions:
@@ -42,8 +48,11 @@ def quantities(skel: Skeleton, motions: list[Motion]) -> dict[str, np.ndarray]:
             out.setdefault(f"joint:{skel.node_names[j]}", []).append(q[:, j])
         for k, v in kps.items():
             out.setdefault(f"kp:{k}", []).append(z[:, v])
-        out.setdefault("base:speed", []).append(np.linalg.norm(np.gradient(m.base_pos, axis=0), axis=1) * m.fps)
+        vel = np.gradient(m.base_pos, axis=0) * m.fps  # (F, 3) m/s
+        out.setdefault("base:tilt", []).append(np.arccos(np.clip(qmatrix(m.base_quat)[:, 2, 2], -1.0, 1.0)))
         out.setdefault("base:height", []).append(m.base_pos[:, 2])
+        out.setdefault("base:speed", []).append(np.linalg.norm(vel, axis=1))
+        out.setdefault("base:speed_xy", []).append(np.linalg.norm(vel[:, :2], axis=1))
         out.setdefault("jerk", []).append(np.abs(np.diff(m.node_angles(skel)[:, skel.dof_mask], 3, axis=0)).ravel())
     return {k: np.concatenate(v) for k, v in out.items()}
 
@@ -53,6 +62,12 @@ def coverage(real: np.ndarray, syn: np.ndarray) -> tuple[float, float]:
     a, b = syn.min(), syn.max()
     c, d = np.percentile(syn, [0.5, 99.5])
     return float(np.mean((real >= a) & (real <= b))), float(np.mean((real >= c) & (real <= d)))
+
+
+def overlap(real: np.ndarray, syn: np.ndarray, lo: float, hi: float, bins: int = 64) -> float:
+    """Histogram intersection of the two distributions over [lo, hi] (values beyond in the end bins): 0..1."""
+    h = [np.histogram(np.clip(x, lo, hi), bins, (lo, hi))[0] / len(x) for x in (real, syn)]
+    return float(np.minimum(*h).sum())
 
 
 def report(robot: str, data: Path, clips: int, seconds: float, seed: int) -> dict:
@@ -71,6 +86,11 @@ def report(robot: str, data: Path, clips: int, seconds: float, seed: int) -> dic
             "lafan1": [float(R[k].min()), float(R[k].max())], "synthetic": [float(S[k].min()), float(S[k].max())],
             "coverage": full, "coverage_p99": robust,
         }  # fmt: skip
+        if k in BASE:
+            rows[k] |= {
+                "overlap": overlap(R[k], S[k], *BASE[k]),
+                "percentiles": {"lafan1": np.percentile(R[k], [5, 50, 95]).tolist(), "synthetic": np.percentile(S[k], [5, 50, 95]).tolist()},
+            }  # fmt: skip
     joints = [v["coverage"] for k, v in rows.items() if k.startswith("joint:")]
     kps = [v["coverage"] for k, v in rows.items() if k.startswith("kp:")]
     return {
@@ -80,7 +100,8 @@ def report(robot: str, data: Path, clips: int, seconds: float, seed: int) -> dic
         "summary": {
             "joint_median": float(np.median(joints)), "joint_min": float(np.min(joints)),
             "keypoint_median": float(np.median(kps)), "keypoint_min": float(np.min(kps)),
-            "base_speed": rows["base:speed"]["coverage"], "base_height": rows["base:height"]["coverage"],
+            "base_tilt": rows["base:tilt"]["coverage"], "base_height": rows["base:height"]["coverage"],
+            "base_speed": rows["base:speed"]["coverage"], "base_speed_xy": rows["base:speed_xy"]["coverage"],
         },
         "jerk": {
             "synthetic": {"max": float(S["jerk"].max()), "mean": float(S["jerk"].mean()), "p99": float(np.percentile(S["jerk"], 99))},
@@ -100,11 +121,17 @@ def render(r: dict) -> str:
             f"  {k:34s} {v['lafan1'][0]:8.2f}..{v['lafan1'][1]:<7.2f} {v['synthetic'][0]:8.2f}..{v['synthetic'][1]:<7.2f} "
             f"{100 * v['coverage']:6.1f}% {100 * v['coverage_p99']:6.1f}%"
         )
+    lines.append(f"  {'base state':34s} {'LAFAN1 5/50/95 %':>20s} {'synthetic 5/50/95 %':>20s} {'overlap':>8s}")
+    for k in BASE:
+        v = r["rows"][k]
+        pr, ps = (" ".join(f"{x:.2f}" for x in v["percentiles"][w]) for w in ("lafan1", "synthetic"))
+        lines.append(f"  {k:34s} {pr:>20s} {ps:>20s} {v['overlap']:8.2f}")
     s, j = r["summary"], r["jerk"]
     lines += [
         f"  joints: median {100 * s['joint_median']:.1f}%, min {100 * s['joint_min']:.1f}%;  key-point heights: median "
-        f"{100 * s['keypoint_median']:.1f}%, min {100 * s['keypoint_min']:.1f}%;  base speed {100 * s['base_speed']:.1f}%;  "
-        f"base height {100 * s['base_height']:.1f}%",
+        f"{100 * s['keypoint_median']:.1f}%, min {100 * s['keypoint_min']:.1f}%",
+        f"  base tilt {100 * s['base_tilt']:.1f}%;  base height {100 * s['base_height']:.1f}%;  base speed {100 * s['base_speed']:.1f}% "
+        f"(horizontal {100 * s['base_speed_xy']:.1f}%)",
         f"  jerk [rad/frame^3]: synthetic max {j['synthetic']['max']:.3f}, mean {j['synthetic']['mean']:.4f}, p99 "
         f"{j['synthetic']['p99']:.3f};  LAFAN1 max {j['lafan1']['max']:.3f}, mean {j['lafan1']['mean']:.4f}, p99 {j['lafan1']['p99']:.3f}",
     ]

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["smooth_noise", "ease", "soft_clamp", "bump", "hold_and_blend"]
+__all__ = ["smooth_noise", "ease", "soft_clamp", "bump", "plateau", "transition", "hold_and_blend"]
 
 
 def smooth_noise(
@@ -74,19 +74,36 @@ def bump(t: np.ndarray, t0: float, duration: float) -> np.ndarray:
     return np.where(inside, np.sin(np.pi * np.clip(s, 0, 1)) ** 4, 0.0)
 
 
-def hold_and_blend(t: np.ndarray, times: np.ndarray, values: np.ndarray) -> np.ndarray:
+def plateau(t: np.ndarray, t0: float, rise: float, hold: float, fall: float) -> np.ndarray:
+    """0 before ``t0``, eased up to 1 over ``rise`` [s], 1 for ``hold`` [s], eased down over ``fall``; C3."""
+    return ease((t - t0) / rise) - ease((t - t0 - rise - hold) / fall)
+
+
+def transition(s: np.ndarray, warp: float = 1.0) -> np.ndarray:
+    """Eased 0 -> 1 over s in [0, 1]: :func:`ease` of ``s ** warp``.
+
+    ``warp`` = 1 is symmetric; ``warp`` > 1 starts slowly and ends fast, like a body toppling
+    over (a fall): the speed peaks late (at s = 0.73 for warp 2) and stops abruptly. Still C3
+    at both ends (``s ** warp`` is smooth on (0, 1] and ``ease`` is flat to third order there).
+    """
+    return ease(np.clip(s, 0.0, 1.0) ** warp)
+
+
+def hold_and_blend(t: np.ndarray, times: np.ndarray, values: np.ndarray, warp: np.ndarray | None = None) -> np.ndarray:
     """Piecewise hold/transition curve: key ``k`` holds ``values[k]`` from ``times[k, 1]`` ... until the
-    transition to key ``k + 1`` over ``[times[k, 1], times[k + 1, 0]]`` eased with :func:`ease`.
+    transition to key ``k + 1`` over ``[times[k, 1], times[k + 1, 0]]`` eased with :func:`transition`.
 
     Args:
         times: (K, 2) per key, [start of its hold, end of its hold] [s], increasing.
         values: (K, ...) key values.
+        warp: (K,) the :func:`transition` warp into each key (1: plain ease; default all 1).
     Returns:
         (F, ...) the curve (C3: velocity, acceleration and jerk vanish at every key boundary).
     """
     out = np.broadcast_to(values[0], (len(t),) + values.shape[1:]).copy()
     for k in range(1, len(times)):
-        w = ease((t - times[k - 1, 1]) / max(times[k, 0] - times[k - 1, 1], 1e-9))
+        s = (t - times[k - 1, 1]) / max(times[k, 0] - times[k - 1, 1], 1e-9)
+        w = transition(s, 1.0 if warp is None else float(warp[k]))
         w = w.reshape((-1,) + (1,) * (values.ndim - 1))
         out = out + w * (values[k] - values[k - 1])
     return out

@@ -1,7 +1,11 @@
-"""Synthetic motions and training samples generated in code (tests, demos, benchmarks).
+"""Synthetic motions and training samples generated in code (training, tests, demos, benchmarks).
 
-No motion data ships with mer (LAFAN1 is CC BY-NC-ND); these smooth, seeded motions on any
-registered robot exercise the whole pipeline. They are not meant to look human.
+No motion data ships with mer (LAFAN1 is CC BY-NC-ND). :func:`synthetic_motion` and
+:class:`SyntheticDataset` (what ``mer train --synthetic`` and ``mer finetune --synthetic`` train on)
+cut windows out of :func:`mer_data.synthesis.synthesize`: the whole-body generator behind
+``mer shards build --synthetic`` (postures down to lying, falls and getting up, travel up to
+sprinting, jumps). :func:`sinusoid_motion` is a gentle upright sinusoid (base tilt <= 0.094 rad,
+base at standing height, 0.3-0.8 m/s) for tests that need an easy motion, not for training.
 """
 
 from __future__ import annotations
@@ -18,8 +22,13 @@ from mer_data.motion.features import motion_features
 from mer_data.motion.samples import TrainingSample
 from mer_data.robots.registry import get_skeleton
 from mer_data.skeleton import Skeleton
+from mer_data.synthesis import synthesize
 
-__all__ = ["synthetic_motion", "standing_height", "SyntheticDataset"]
+__all__ = ["synthetic_motion", "sinusoid_motion", "standing_height", "SyntheticDataset", "LEAD_IN_S"]
+
+#: A window starts anywhere in the first ``LEAD_IN_S`` seconds of its generated clip [s] (a clip
+#: begins in a drawn posture, so windows that start later catch transitions, falls and sprints).
+LEAD_IN_S = 10.0
 
 
 def standing_height(skel: Skeleton) -> float:
@@ -28,11 +37,35 @@ def standing_height(skel: Skeleton) -> float:
 
 
 def synthetic_motion(skel: Skeleton, frames: int, fps: float = 30.0, seed: int = 0) -> dict[str, np.ndarray]:
-    """A smooth seeded motion inside the joint limits.
+    """A seeded window of whole-body synthetic motion (:func:`mer_data.synthesis.synthesize`).
+
+    The window starts 0..``LEAD_IN_S`` seconds (drawn from ``seed``) into a clip generated for it, so
+    it may hold any posture, transition, fall, sprint or jump; joints never pass their limits and the
+    lowest node is on the ground outside jumps. Same seed, same arrays.
+
+    Returns ``base_pos`` (T, 3) [m], ``base_quat`` (T, 4) wxyz, ``q`` (T, J) [rad] (0 for base, sites
+    and mimic joints), all float64, T = ``frames``.
+    """
+    if frames < 1:
+        raise ValueError(f"frames must be at least 1, got {frames}")
+    lead = int(np.random.default_rng([int(seed), 0]).integers(0, int(LEAD_IN_S * fps) + 1))
+    n = max(lead + frames - 1, 1)  # the clip has n + 1 frames
+    motion = synthesize(skel, n / fps, fps, seed=[int(seed), 1]).motion
+    w = slice(lead, lead + frames)
+    return {
+        "base_pos": motion.base_pos[w].copy(),
+        "base_quat": motion.base_quat[w].copy(),
+        "q": motion.node_angles(skel)[w].copy(),
+    }
+
+
+def sinusoid_motion(skel: Skeleton, frames: int, fps: float = 30.0, seed: int = 0) -> dict[str, np.ndarray]:
+    """A gentle seeded motion inside the joint limits (for tests that need an easy, upright motion).
 
     Returns ``base_pos`` (T, 3) [m], ``base_quat`` (T, 4) wxyz, ``q`` (T, J) [rad] (0 for base/sites),
     all float64. Joints swing sinusoidally about their nominal angle within the middle 60 % of their
-    range; the base walks forward at 0.3-0.8 m/s while turning slowly and bobbing.
+    range; the base walks forward at 0.3-0.8 m/s at standing height while turning slowly and bobbing
+    (roll <= 0.05, pitch <= 0.08 rad). Not training data: it covers none of the base states people reach.
     """
     rng = np.random.default_rng(seed)
     t = np.arange(frames) / fps
@@ -80,7 +113,8 @@ def _origin_normalize(feats: np.ndarray) -> np.ndarray:
 
 
 class SyntheticDataset(torch.utils.data.Dataset):
-    """Seeded :class:`~mer_data.motion.samples.TrainingSample` windows of synthetic motion.
+    """Seeded :class:`~mer_data.motion.samples.TrainingSample` windows of synthetic motion
+    (:func:`synthetic_motion`: the whole-body generator of :mod:`mer_data.synthesis`).
 
     Sample ``i`` retargets a synthetic window of ``source`` to ``targets[i % len(targets)]``. The
     target carries motion data (``target`` features) only when it is the source robot itself and
@@ -123,5 +157,11 @@ class SyntheticDataset(torch.utils.data.Dataset):
             target_skeleton=tgt,
             joint_map=joint_map(tgt, self.source),
             target=ref.copy() if same else None,
-            provenance={"robot": self.source.name, "clip": f"synthetic-{self.seed}", "start": i, "target": tgt.name, "augmentation": int(self.augment and not same)},
+            provenance={
+                "robot": self.source.name,
+                "clip": f"synthetic-{self.seed}",
+                "start": i,
+                "target": tgt.name,
+                "augmentation": int(self.augment and not same),
+            },
         )
