@@ -17,7 +17,7 @@ from mer_data.kinematics.fk import apply_mimic, forward_kinematics
 from mer_data.kinematics.rotations import matrix_to_axis_angle
 from mer_data.motion.features import FEATURE_DIM, finite_difference
 
-__all__ = ["BatchGraph", "graph_from_batch", "batch_fk", "batch_features", "yaw_of", "rot_z"]
+__all__ = ["BatchGraph", "graph_from_batch", "batch_fk", "batch_features", "yaw_of", "rot_z", "descendants", "nearest_mapped_ancestor"]
 
 
 @dataclass(frozen=True)
@@ -114,3 +114,28 @@ def rot_z(angle: torch.Tensor) -> torch.Tensor:
     c, s = torch.cos(angle), torch.sin(angle)
     z, o = torch.zeros_like(angle), torch.ones_like(angle)
     return torch.stack([c, -s, z, s, c, z, z, z, o], -1).reshape(angle.shape + (3, 3))
+
+
+def descendants(parents: torch.Tensor) -> torch.Tensor:
+    """(B, J) parent indices (-1 at the root; parents before children) → (B, J, J) bool: ``k`` is ``j`` or below it."""
+    B, J = parents.shape
+    eye = torch.eye(J, dtype=torch.bool, device=parents.device).expand(B, J, J)
+    anc = eye.clone()  # anc[b, k, j]: j is an ancestor-or-self of k
+    for k in range(1, J):
+        p = parents[:, k].clamp_min(0)
+        anc[:, k] = anc[:, k] | anc[torch.arange(B, device=parents.device), p]
+    return anc.transpose(1, 2)
+
+
+def nearest_mapped_ancestor(parents: torch.Tensor, has: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(B, J) the nearest strict ancestor of each node that has a goal, and (B, J) the same counting
+    the node itself; the base (node 0) at worst."""
+    B, J = parents.shape
+    idx = torch.arange(B, device=parents.device)
+    self_or = torch.zeros(B, J, dtype=torch.long, device=parents.device)  # nearest mapped ancestor-or-self
+    out = torch.zeros(B, J, dtype=torch.long, device=parents.device)
+    for k in range(1, J):
+        p = parents[:, k].clamp_min(0)
+        out[:, k] = self_or[idx, p]
+        self_or[:, k] = torch.where(has[:, k], torch.full_like(p, k), out[:, k])
+    return out, self_or

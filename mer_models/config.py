@@ -31,6 +31,8 @@ __all__ = [
     "SamplerConfig",
     "TrainConfig",
     "RunConfig",
+    "WarmConfig",
+    "KINDS",
     "PRESETS",
     "preset",
     "from_dict",
@@ -83,6 +85,17 @@ class ModelConfig:
         norm_first: pre-norm layers, ``x + f(LayerNorm(x))`` with a final LayerNorm per decoder,
             instead of the paper's post-norm ``LayerNorm(x + f(x))`` (default, and what checkpoints
             written before it existed load with).
+        split_encoding: the frame sinusoids fill the first half of every token's channels and the
+            node sinusoids the second (and the graph conditions' node sinusoids the second half too),
+            instead of both being added into all channels, where (frame t, node j) and (frame j,
+            node t) get the same code. No parameters. Checkpoints written before it existed load
+            with ``False`` (summed).
+        goal_frame_rotation: the base orientation in the diffusion space is ``delta``, the rotation
+            from the base's orientation goal, ``R = R_goal Exp(delta)`` (``R_goal`` = I where the
+            base has no orientation goal), instead of the rotation vector of ``R`` (minus the
+            goal's rotation vector with ``goal_prior``). Training targets, samples, the energy and
+            the decoding all go through it (docs/model.md). Checkpoints written before it existed
+            load with ``False``.
     """
 
     hidden: int = 240
@@ -99,13 +112,15 @@ class ModelConfig:
     goal_input: bool = False
     goal_prior: bool = False
     norm_first: bool = False
+    split_encoding: bool = False
+    goal_frame_rotation: bool = False
 
     def __post_init__(self) -> None:
         c = "ModelConfig"
         for name in ("hidden", "layers", "heads", "cross_heads_per_condition", "ffn", "frames"):
             _check(isinstance(getattr(self, name), int) and getattr(self, name) > 0, c, name, "must be a positive integer")
         _check(self.hidden % self.heads == 0, c, "hidden", f"hidden={self.hidden} is not divisible by heads={self.heads}")
-        for name in ("goal_input", "goal_prior", "norm_first"):
+        for name in ("goal_input", "goal_prior", "norm_first", "split_encoding", "goal_frame_rotation"):
             _check(isinstance(getattr(self, name), bool), c, name, "must be true or false")
         _check(self.window % 2 == 1 and self.window >= 1, c, "window", f"window={self.window} must be odd and >= 1")
         _check(0.0 <= self.dropout < 1.0, c, "dropout", "must be in [0, 1)")
@@ -293,15 +308,81 @@ class TrainConfig:
         _check_finite(self)
 
 
+#: Model kinds: ``diffusion`` (:mod:`mer_models.diffusion`, the paper's model) and ``warm`` (:mod:`mer_models.warm`).
+KINDS = ("diffusion", "warm")
+
+
+@dataclass(frozen=True)
+class WarmConfig:
+    """The warm-start network (:mod:`mer_models.warm`): one token per target node and frame, a few
+    spatial-attention layers with relation codes, a short temporal convolution; its output is
+    finished by ``refine`` whole-window Levenberg-Marquardt iterations (docs/model.md, The warm start).
+
+    Attributes:
+        hidden: token width.
+        layers: spatial-attention + temporal-convolution + feed-forward layers.
+        heads: attention heads (``hidden`` divisible by it).
+        ffn: feed-forward width.
+        kernel: frames of each depthwise temporal convolution (odd; the receptive field is
+            ``layers * (kernel - 1) + 1`` frames).
+        vel_scale: [m/s] goal velocities are divided by this.
+        stride: the network runs on every ``stride``-th frame (and the last); its outputs are
+            interpolated linearly in between (the optimiser's key-frame idea: ``stride`` times fewer
+            tokens; the refinement finishes the frames in between).
+        refine: whole-window LM iterations after the network (the default of ``--refine``).
+        w_q: weight of the angle regression on the teacher's solution [1/rad^2].
+        w_fk: weight of the body-position regression (FK of the output vs FK of the teacher) [1/m^2].
+        w_rot: weight of the base orientation regression (chordal, vs the teacher's).
+        w_pos: weight of the base position regression [1/m^2].
+        w_energy: weight of the teacher's energy ``f_kin`` of the output.
+        crop: frames of the random crop of each training window (0: the whole window).
+    """
+
+    hidden: int = 64
+    layers: int = 3
+    heads: int = 4
+    ffn: int = 128
+    kernel: int = 5
+    vel_scale: float = 2.0
+    stride: int = 1
+    refine: int = 2
+    w_q: float = 1.0
+    w_fk: float = 100.0
+    w_rot: float = 1.0
+    w_pos: float = 100.0
+    w_energy: float = 1.0
+    crop: int = 0
+
+    def __post_init__(self) -> None:
+        c = "WarmConfig"
+        for name in ("hidden", "layers", "heads", "ffn", "kernel"):
+            _check(isinstance(getattr(self, name), int) and getattr(self, name) > 0, c, name, "must be a positive integer")
+        _check(self.hidden % self.heads == 0, c, "hidden", f"hidden={self.hidden} is not divisible by heads={self.heads}")
+        _check(self.kernel % 2 == 1, c, "kernel", f"kernel={self.kernel} must be odd")
+        _check(isinstance(self.refine, int) and self.refine >= 0, c, "refine", "must be an integer >= 0")
+        _check(isinstance(self.stride, int) and 1 <= self.stride <= 8, c, "stride", "must be an integer in 1..8")
+        _check(isinstance(self.crop, int) and self.crop >= 0, c, "crop", "must be an integer >= 0")
+        _check(self.vel_scale > 0, c, "vel_scale", "must be > 0")
+        for name in ("w_q", "w_fk", "w_rot", "w_pos", "w_energy"):
+            _check(getattr(self, name) >= 0, c, name, "must be >= 0")
+        _check_finite(self)
+        _check(self.hidden <= 4096 and self.layers <= 64 and self.ffn <= 16384, c, "hidden", "is absurdly large")
+
+
 @dataclass(frozen=True)
 class RunConfig:
     """Everything a checkpoint needs to rebuild and resume its model."""
 
     name: str = "paper"
+    kind: str = "diffusion"
     model: ModelConfig = field(default_factory=ModelConfig)
     energy: EnergyConfig = field(default_factory=EnergyConfig)
     sampler: SamplerConfig = field(default_factory=SamplerConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
+    warm: WarmConfig = field(default_factory=WarmConfig)
+
+    def __post_init__(self) -> None:
+        _check(self.kind in KINDS, "RunConfig", "kind", f"kind={self.kind!r} is not one of {', '.join(KINDS)}")
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -311,7 +392,7 @@ class RunConfig:
 
 
 PRESETS: dict[str, RunConfig] = {
-    "paper": RunConfig(name="paper"),
+    "paper": RunConfig(name="paper", model=ModelConfig(split_encoding=True, goal_frame_rotation=True)),
     "tiny": RunConfig(
         name="tiny",
         model=ModelConfig(hidden=48, layers=2, heads=4, cross_heads_per_condition=1, ffn=96, dropout=0.0),
@@ -319,15 +400,33 @@ PRESETS: dict[str, RunConfig] = {
     ),
     "base": RunConfig(
         name="base",
-        model=ModelConfig(hidden=96, layers=2, heads=4, cross_heads_per_condition=1, ffn=256, dropout=0.0, goal_input=True, goal_prior=True),
+        model=ModelConfig(
+            hidden=96,
+            layers=2,
+            heads=4,
+            cross_heads_per_condition=1,
+            ffn=256,
+            dropout=0.0,
+            goal_input=True,
+            goal_prior=True,
+            split_encoding=True,
+            goal_frame_rotation=True,
+        ),
         sampler=SamplerConfig(steps=1, method="euler", init_noise=0.0),
         train=TrainConfig(batch_size=16, lr=7e-4, warmup=100, save_every=200, p_mean=2.0, start_frac=0.5),
+    ),
+    # the warm-start model (mer_models.warm): a second kind, trained by mer_models.training.warm
+    "warm": RunConfig(
+        name="warm",
+        kind="warm",
+        warm=WarmConfig(hidden=48, layers=3, heads=4, ffn=96, stride=2, crop=20),
+        train=TrainConfig(batch_size=64, lr=3e-3, warmup=50, lr_decay_steps=3000, lr_min_ratio=0.02, save_every=100, opt_iters=6),
     ),
 }
 
 
 def preset(name: str) -> RunConfig:
-    """A preset by name (``tiny``, ``base`` or ``paper``)."""
+    """A preset by name (``tiny``, ``base``, ``paper``, or ``warm``: the warm-start model)."""
     try:
         return PRESETS[name]
     except KeyError:
@@ -336,10 +435,12 @@ def preset(name: str) -> RunConfig:
         ) from None
 
 
-_SECTIONS = {"model": ModelConfig, "energy": EnergyConfig, "sampler": SamplerConfig, "train": TrainConfig}
+_SECTIONS = {"model": ModelConfig, "energy": EnergyConfig, "sampler": SamplerConfig, "train": TrainConfig, "warm": WarmConfig}
+#: Sections and top-level fields added later: a checkpoint without them loads with these.
+_OPTIONAL: dict[str, Any] = {"kind": "diffusion", "warm": None}
 #: Fields added after checkpoints were first written, with the value that reproduces the older
 #: behaviour: a checkpoint without them loads with that value (and nothing else may be missing).
-_LEGACY = {ModelConfig: {"goal_input": False, "goal_prior": False, "norm_first": False}, EnergyConfig: {"w_ori": 0.0}, SamplerConfig: {"method": "heun", "init_noise": 1.0, "feedback_sigma": 0.3}, TrainConfig: {"lr_decay_steps": 0, "lr_min_ratio": 0.1, "start_frac": 0.0, "feedback_frac": 0.0, "ref_group": 1, "ema": 0.0}}
+_LEGACY = {ModelConfig: {"goal_input": False, "goal_prior": False, "norm_first": False, "split_encoding": False, "goal_frame_rotation": False}, EnergyConfig: {"w_ori": 0.0}, SamplerConfig: {"method": "heun", "init_noise": 1.0, "feedback_sigma": 0.3}, TrainConfig: {"lr_decay_steps": 0, "lr_min_ratio": 0.1, "start_frac": 0.0, "feedback_frac": 0.0, "ref_group": 1, "ema": 0.0}}
 
 
 def _section(cls, data: Any, where: str):
@@ -381,7 +482,10 @@ def from_dict(data: Mapping[str, Any]) -> RunConfig:
     """Rebuild a :class:`RunConfig` from :meth:`RunConfig.to_dict`, strictly (unknown/missing → error)."""
     if not isinstance(data, Mapping):
         raise ConfigError("the run configuration must be a JSON object")
-    known = {"name", *_SECTIONS}
+    data = {**_OPTIONAL, **data}
+    if data["warm"] is None:  # written before the warm kind existed: a diffusion checkpoint
+        data["warm"] = dataclasses.asdict(WarmConfig())
+    known = {"name", "kind", *_SECTIONS}
     unknown = sorted(set(data) - known)
     missing = sorted(known - set(data))
     if unknown or missing:
@@ -393,6 +497,9 @@ def from_dict(data: Mapping[str, Any]) -> RunConfig:
         )
     if not isinstance(data["name"], str):
         raise ConfigError("name must be a string", element="name")
-    run = RunConfig(name=data["name"], **{k: _section(cls, data[k], k) for k, cls in _SECTIONS.items()})
+    if data["kind"] not in KINDS:
+        raise ConfigError(f"kind {data['kind']!r} is not one of {', '.join(KINDS)}", element="kind",
+                          fix="load it with the mer version that wrote it")  # fmt: skip
+    run = RunConfig(name=data["name"], kind=data["kind"], **{k: _section(cls, data[k], k) for k, cls in _SECTIONS.items()})
     run.model.check_size()
     return run

@@ -112,6 +112,12 @@ def run_curve(cfg_name: str, args, out: Path, minutes: float) -> list[dict]:
     ffn = args.ffn if args.ffn is not None else (ffn_width(Path(args.init) / "model.safetensors") if args.init else None)
     if ffn is not None and ffn != run.model.ffn:  # --ffn, or --init's own width (the bundled mer-base: 768)
         run = run.replace(model=dataclasses.replace(run.model, ffn=ffn))
+    if args.init:  # the network must be the one the weights were trained as: the fixes' flags come from --init
+        from mer_models.hub.checkpoint_files import read_run
+
+        _, init_run = read_run(Path(args.init))
+        flags = {k: getattr(init_run.model, k) for k in ("split_encoding", "goal_frame_rotation")}
+        run = run.replace(model=dataclasses.replace(run.model, **flags))
     if args.ref_group:
         run = run.replace(train=dataclasses.replace(run.train, ref_group=args.ref_group))
     if args.ema is not None:

@@ -13,16 +13,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "finetune",
         help="fine-tune a model for a robot it never saw",
-        description="Continue training BASE (a zoo name, a checkpoint folder or a Hub id ORG/NAME) with ROBOT added "
-        "to its training targets. The --out folder is a checkpoint that records its base; publish it with "
-        "`mer zoo publish OUT --name NAME --repo-id ORG/NAME`.",
+        description="Continue training BASE (a zoo name, a checkpoint folder or a Hub id ORG/NAME; a diffusion model "
+        "or a warm start) with ROBOT added to its training targets. The --out folder is a checkpoint that records its "
+        "base; publish it with `mer zoo publish OUT --name NAME --repo-id ORG/NAME`.",
     )
     p.add_argument("--base", required=True, help="the model to start from (zoo name, folder or ORG/NAME)")
     p.add_argument("--revision", help="revision of the base (zoo names and Hub ids; default: the pinned one)")
     p.add_argument("--robot", required=True, help="the registered robot to add (mer robots register NAME --urdf FILE)")
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--shards", nargs="+", metavar="PATH", help="shard files or folders: their reference windows are used")
-    src.add_argument("--synthetic", type=int, metavar="N", help="N synthetic windows of --source (no data needed)")
+    src.add_argument("--synthetic", type=int, metavar="N",
+                     help="N synthetic windows of --source (no data needed; a warm start's are its training crop long)")  # fmt: skip
     p.add_argument("--out", required=True, help="checkpoint folder to write")
     p.add_argument("--steps", type=int, default=200, help="optimiser steps of the fine-tune (default 200)")
     p.add_argument("--source", default="g1", help="reference robot of --synthetic data (default g1)")

@@ -8,7 +8,7 @@ import sys
 
 def check_refine(args: argparse.Namespace) -> None:
     """Refuse ``--refine K`` below 0 before any work starts (``mer retarget`` and ``mer evaluate``)."""
-    if args.refine < 0:
+    if args.refine is not None and args.refine < 0:
         from mer_data.base.errors import MerError
 
         raise MerError(f"--refine must be >= 0, got {args.refine}", fix="give --refine K with K >= 0 (0: the model alone)")
@@ -70,8 +70,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--steps", type=int, help="sampler steps (default: the model's, <= 20)")
     p.add_argument("--guidance", type=float, help="test-time energy guidance step (default: the model's)")
     p.add_argument("--seed", type=int, default=0, help="sampling seed")
-    p.add_argument("--refine", type=int, default=0, metavar="K", help="diffusion: then at most K optimiser iterations from the "
-                   "model's output (fast and exact; default 0: the model alone)")
+    p.add_argument("--refine", type=int, default=None, metavar="K", help="diffusion: then at most K optimiser iterations from the "
+                   "model's output (fast and exact; default: the model's own, 0 for a diffusion model, 2 for a warm start)")
     p.add_argument("--bf16", action="store_true", help="diffusion: the network in bfloat16 (about twice as fast on CPUs with AMX "
                    "or AVX512-BF16 and on GPUs, within 0.5 mm of float32 on LAFAN1; emulated and slower elsewhere: a warning says so)")
     p.add_argument("--fps", type=float, default=30.0, help="frame rate of the input (resampled to 30 Hz)")

@@ -17,7 +17,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         description="Train the model; the --out folder is the checkpoint (config.json + model.safetensors). "
         "Multi-GPU/CPU: run under `torchrun --nproc_per_node N -m mer_models train ...`.",
     )
-    p.add_argument("--config", default="tiny", help="preset: tiny (CPU, minutes), base (mer-base: CPU, hours) or paper (H=240, 4 layers)")
+    p.add_argument("--config", default="tiny", help="preset: tiny (CPU, minutes), base (mer-base: CPU, hours), paper (H=240, 4 layers) or warm (the warm-start model, mer-warm)")
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--shards", nargs="+", metavar="PATH", help="shard files or folders (mer shards build)")
     src.add_argument("--synthetic", type=int, metavar="N", help="train on N synthetic windows (no data needed)")
@@ -73,7 +73,7 @@ def cmd_train(args) -> int:
         from mer_models.training.synthetic import SyntheticDataset
 
         targets = tuple(args.targets or ("g1", "h1", "atlas", "oli", "tron1"))
-        dataset = SyntheticDataset(args.source, targets, size=args.synthetic, frames=run.model.frames, augment=True, seed=run.train.seed)
+        dataset = SyntheticDataset(args.source, targets, size=args.synthetic, frames=run.model.frames, augment=True, seed=run.train.seed)  # fmt: skip
         info = {"synthetic": args.synthetic, "source": args.source, "targets": list(targets), "samples": len(dataset)}
 
     res = train(run, dataset, args.out, steps=args.steps, resume=args.resume, device=args.device, bf16=args.bf16,
@@ -85,6 +85,10 @@ def cmd_train(args) -> int:
 
 def show_progress(rec: dict) -> None:
     """One line per training log record, on stderr (called on rank 0 only)."""
+    if "edm" not in rec:  # the warm-start model: regression on the teacher and its energy
+        print(f"step {rec['step']:6d}  loss {rec['loss']:.4f}  q {rec['q']:.5f} rad^2  fk {rec['fk']:.6f} m^2  "
+              f"energy {rec['energy']:.5f}  {rec['sec_per_step']:.2f} s/step", file=sys.stderr)  # fmt: skip
+        return
     print(
         f"step {rec['step']:6d}  loss {rec['loss']:.4f}  edm {rec['edm']:.4f}  f_kin {rec['f_total']:.5f} "
         f"(kp {rec['f_kp']:.5f} cst {rec['f_cst']:.5f} vel {rec['f_vel']:.5f} norm {rec['f_norm']:.5f})  "

@@ -10,6 +10,13 @@
 The denoiser contract is k-diffusion's: ``model.denoise(x, sigma, cond) -> D`` with ``x`` (B, T, Jt, 9)
 in the diffusion space; the encoded reference is computed once per :class:`Conditions` and reused
 by every denoising step.
+
+The base orientation channels of a sample are the rotation vector of the base's orientation, or,
+with ``ModelConfig.goal_frame_rotation``, ``delta`` with ``R = R_goal Exp(delta)`` (the goal's
+frame, :meth:`RetargetModel.base_goal_rotation`): every way into the diffusion space
+(:meth:`RetargetModel.to_sample`, :meth:`RetargetModel.target_sample`, ``clean_samples`` of
+training) and out of it (:meth:`RetargetModel.physical`, :meth:`RetargetModel.base_rotation`,
+:meth:`RetargetModel.decode`, :meth:`RetargetModel.project`, the energy) goes through the model.
 """
 
 from __future__ import annotations
@@ -22,7 +29,7 @@ from torch import nn
 
 from mer_data.kinematics.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 from mer_data.motion.features import finite_difference
-from mer_models.batch import BatchGraph, batch_features, graph_from_batch
+from mer_models.batch import BatchGraph, batch_features, descendants, graph_from_batch, nearest_mapped_ancestor
 from mer_models.config import EnergyConfig, ModelConfig
 from mer_models.hub.pretrained import PretrainedMixin
 from mer_models.solver.energy import f_kin, keypoint_goals, orientation_pairs
@@ -34,6 +41,8 @@ from .representation import (
     canonical_rotation,
     denormalize,
     normalize,
+    rotation_from_frame,
+    rotation_in_frame,
     transform_features,
     transform_points,
     unwrap_rotvec,
@@ -62,6 +71,8 @@ class Conditions:
         ref_tokens: the encoded reference (filled on first use, reused by every denoising step).
         goal_feats: (B, T, Jt, GOAL_DIM) the goal input of ``goal_input`` networks (filled on first use).
         prior: (B, T, Jt, 9) the goals as a sample, for ``goal_prior`` networks (filled on first use).
+        base_goal: (B, T, 3, 3) the base's orientation goal, canonical frame, identity where it has
+            none: the frame of ``goal_frame_rotation`` networks' base orientation (filled on first use).
     """
 
     reference: torch.Tensor
@@ -78,6 +89,7 @@ class Conditions:
     ref_tokens: torch.Tensor | None = None
     goal_feats: torch.Tensor | None = None
     prior: torch.Tensor | None = None
+    base_goal: torch.Tensor | None = None
 
     @property
     def shape(self) -> tuple[int, int, int, int]:
@@ -139,7 +151,34 @@ class RetargetModel(PretrainedMixin, nn.Module):
         scaled reference's), rotated like the reference.
         """
         t = transform_features(target.to(cond.rot.device, torch.float32), cond.rot, base_origin(target.to(cond.rot.device)))
-        return normalize(t, self.cfg) * cond.tgt_graph.mask[:, None, :, None]
+        return self.to_sample(t, cond)
+
+    def to_sample(self, feats: torch.Tensor, cond: Conditions, rows: torch.Tensor | None = None) -> torch.Tensor:
+        """Physical features in the canonical frame (B, T, Jt, 9) (base rotation as a rotation vector)
+        → the diffusion space, padding zero; ``rows`` (B,): the samples of ``cond`` they belong to
+        (all by default). With ``goal_frame_rotation`` the base's rotation becomes
+        ``delta = Log(R_goal^T R)``, unwrapped along time; the inverse is :meth:`physical`.
+        """
+        mask = cond.tgt_graph.mask if rows is None else cond.tgt_graph.mask[rows]
+        if self.cfg.goal_frame_rotation:
+            frame = self.base_goal_rotation(cond)
+            frame = frame if rows is None else frame[rows]
+            feats = feats.clone()
+            feats[:, :, 0, 0:3] = rotation_in_frame(feats[:, :, 0, 0:3], frame.to(feats.dtype))
+        return normalize(feats, self.cfg) * mask[:, None, :, None]
+
+    def base_goal_rotation(self, cond: Conditions) -> torch.Tensor:
+        """(B, T, 3, 3) the base's orientation goal (canonical frame), identity for a sample whose base
+        has none or without orientation goals (no parameters; computed once per :class:`Conditions`)."""
+        if cond.base_goal is None:
+            B, T = cond.reference.shape[:2]
+            dev = cond.reference.device
+            frame = torch.eye(3, device=dev).expand(B, T, 3, 3)
+            if cond.goal_rot is not None and cond.rot_mask is not None:
+                grot, has_rot = orientation_pairs(cond.eta, cond.goal_rot, cond.rot_mask)
+                frame = torch.where(has_rot[:, None, :1, None], grot[:, :, 0], frame)
+            cond.base_goal = frame.contiguous()
+        return cond.base_goal
 
     # ---- denoiser ---------------------------------------------------------------------------
     def encode(self, cond: Conditions) -> torch.Tensor:
@@ -188,10 +227,10 @@ class RetargetModel(PretrainedMixin, nn.Module):
         g = cond.tgt_graph
         base_rot = grot[:, :, 0] if cond.goal_rot is not None and cond.rot_mask is not None and bool(has_rot[:, 0].all()) else None
         local = rel if base_rot is None else torch.einsum("btji,btnj->btni", base_rot, rel)  # R_b^T (g - g_0)
-        below = _descendants(g.parents) & g.mask[:, None, :] & has[:, None, :]  # (B, J, J): mapped nodes under (or at) j
+        below = descendants(g.parents) & g.mask[:, None, :] & has[:, None, :]  # (B, J, J): mapped nodes under (or at) j
         count = below.sum(-1)
         centroid = torch.einsum("bjk,btkd->btjd", below.to(local.dtype), local) / count.clamp_min(1)[:, None, :, None]
-        anc, _ = _nearest_mapped_ancestor(g.parents, has)  # (B, J) strict ancestor with a goal (0: the base)
+        anc, _ = nearest_mapped_ancestor(g.parents, has)  # (B, J) strict ancestor with a goal (0: the base)
         start = torch.gather(local, 2, anc[:, None, :, None].expand(B, T, Jt, 3))
         end = torch.where(has[:, None, :, None], local, centroid)
         seg = (end - start) * ((count > 0) & g.mask)[:, None, :, None].to(local.dtype)
@@ -208,7 +247,8 @@ class RetargetModel(PretrainedMixin, nn.Module):
         """(B, T, Jt, 9) the goals as a sample in the diffusion space (``goal_prior``; no parameters).
 
         Base: its orientation goal (rotation vector, unwrapped along time; 0 without orientation
-        goals), its goal position and velocity. Other nodes: angle 0; position and velocity of the
+        goals; always 0 with ``goal_frame_rotation``, whose ``delta`` is relative to that goal), its
+        goal position and velocity. Other nodes: angle 0; position and velocity of the
         node's goal, or of its nearest ancestor's that has one (the base's at worst). Padding: 0.
         """
         if cond.prior is not None:
@@ -217,12 +257,12 @@ class RetargetModel(PretrainedMixin, nn.Module):
         g = cond.tgt_graph
         has = has & g.mask
         B, T, Jt = goals.shape[:3]
-        _, src = _nearest_mapped_ancestor(g.parents, has)  # node whose goal stands in (itself, an ancestor, the base)
+        _, src = nearest_mapped_ancestor(g.parents, has)  # node whose goal stands in (itself, an ancestor, the base)
         pos = torch.gather(goals, 2, src[:, None, :, None].expand(B, T, Jt, 3))
         vel = finite_difference(pos, cond.fps, dim=-3)
         prior = goals.new_zeros(B, T, Jt, 9)
         ps, vs = self.cfg.pos_scale, self.cfg.vel_scale
-        if cond.goal_rot is not None and cond.rot_mask is not None:
+        if cond.goal_rot is not None and cond.rot_mask is not None and not self.cfg.goal_frame_rotation:
             grot, has_rot = orientation_pairs(cond.eta, cond.goal_rot, cond.rot_mask)
             rv = unwrap_rotvec(matrix_to_axis_angle(grot[:, :, 0]))
             prior[:, :, 0, 0:3] = rv * has_rot[:, None, :1].to(rv.dtype)
@@ -251,22 +291,42 @@ class RetargetModel(PretrainedMixin, nn.Module):
         return d if prior is None else d + prior
 
     # ---- physics of a prediction ------------------------------------------------------------
-    def physical(self, d: torch.Tensor) -> torch.Tensor:
-        """Diffusion space → physical canonical features."""
-        return denormalize(d, self.cfg)
+    def physical(self, d: torch.Tensor, cond: Conditions | None = None) -> torch.Tensor:
+        """A sample (B, T, Jt, 9) in the diffusion space → physical canonical features, the base's
+        rotation as a rotation vector [rad] (unwrapped along time). ``cond`` is needed (only) by
+        ``goal_frame_rotation`` models, whose ``delta`` is relative to the base's goal."""
+        p = denormalize(d, self.cfg)
+        if not self.cfg.goal_frame_rotation:
+            return p
+        if cond is None:
+            raise ValueError("this model's base rotation is relative to its goal (goal_frame_rotation): pass the conditions")
+        rv = unwrap_rotvec(matrix_to_axis_angle(self._base_rotation(p, cond)))
+        return torch.cat([torch.cat([rv[:, :, None], p[:, :, :1, 3:]], -1), p[:, :, 1:]], 2)
+
+    def base_rotation(self, d: torch.Tensor, cond: Conditions) -> torch.Tensor:
+        """(B, T, 3, 3) canonical ← base rotation of a sample (B, T, Jt, 9) in the diffusion space:
+        ``Exp(r)``, or ``R_goal Exp(delta)`` with ``goal_frame_rotation``."""
+        return self._base_rotation(denormalize(d, self.cfg), cond)
+
+    def _base_rotation(self, p: torch.Tensor, cond: Conditions) -> torch.Tensor:
+        """:meth:`base_rotation` of denormalized features ``p`` (B, T, Jt, 9)."""
+        r = p[..., 0, 0:3]
+        if self.cfg.goal_frame_rotation:
+            return rotation_from_frame(r, self.base_goal_rotation(cond).to(r.dtype))
+        return axis_angle_to_matrix(r)
 
     def energy(self, d: torch.Tensor, cond: Conditions, ecfg: EnergyConfig) -> dict[str, torch.Tensor]:
         """``f_kin`` terms of a denoised sample (B,) each (:func:`mer_models.solver.energy.f_kin`)."""
-        return f_kin(ecfg, cond.tgt_graph, self.physical(d), cond.eta, cond.goal, cond.fps, cond.goal_rot, cond.rot_mask)
+        return f_kin(ecfg, cond.tgt_graph, self.physical(d, cond), cond.eta, cond.goal, cond.fps, cond.goal_rot, cond.rot_mask)
 
     def project(self, d: torch.Tensor, cond: Conditions) -> torch.Tensor:
         """A denoised sample made kinematically consistent (B, T, Jt, 9), diffusion space: its joint
         angles and base pose kept, every position and velocity feature recomputed by FK of them
         (what the ``feedback`` sampler feeds back; the angles are the motion, :meth:`decode`)."""
-        p = self.physical(d)
+        p = denormalize(d, self.cfg)
         q = torch.cat([torch.zeros_like(p[..., :1, 0]), p[..., 1:, 0]], -1) * cond.tgt_graph.revolute[:, None]
-        feats = batch_features(cond.tgt_graph, q, p[..., 0, 3:6], axis_angle_to_matrix(p[..., 0, 0:3]), cond.fps)
-        base = torch.cat([p[..., :1, 0:3], feats[..., :1, 3:]], -1)  # the base keeps its own (unwrapped) rotation vector
+        feats = batch_features(cond.tgt_graph, q, p[..., 0, 3:6], self._base_rotation(p, cond), cond.fps)
+        base = torch.cat([p[..., :1, 0:3], feats[..., :1, 3:]], -1)  # the base keeps its own (unwrapped) rotation
         feats = torch.cat([base, feats[..., 1:, :]], 2)
         return normalize(feats, self.cfg) * cond.tgt_graph.mask[:, None, :, None].to(d.dtype)
 
@@ -276,9 +336,9 @@ class RetargetModel(PretrainedMixin, nn.Module):
         Returns ``q`` (B, T, Jt) [rad] (0 at base, sites, padding), ``base_pos`` (B, T, 3) [m],
         ``base_rot`` (B, T, 3, 3) world ← base.
         """
-        p = self.physical(d)
+        p = denormalize(d, self.cfg)
         q = torch.cat([torch.zeros_like(p[..., :1, 0]), p[..., 1:, 0]], -1) * cond.tgt_graph.revolute[:, None]
-        rot_c = axis_angle_to_matrix(p[..., 0, 0:3])
+        rot_c = self._base_rotation(p, cond)
         base_rot = cond.rot.transpose(-1, -2)[:, None] @ rot_c
         base_pos = torch.einsum("bji,btj->bti", cond.rot, p[..., 0, 3:6]) + cond.origin[:, None]
         return {"q": q, "base_pos": base_pos, "base_rot": base_rot}
@@ -312,28 +372,3 @@ def shared_rows(*tensors: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     cand = cand.index_put((dup[~same],), dup[~same])
     first, inverse = torch.unique(cand, return_inverse=True)  # sorted: batch order
     return first, inverse
-
-
-def _descendants(parents: torch.Tensor) -> torch.Tensor:
-    """(B, J) parent indices (-1 at the root; parents before children) → (B, J, J) bool: ``k`` is ``j`` or below it."""
-    B, J = parents.shape
-    eye = torch.eye(J, dtype=torch.bool, device=parents.device).expand(B, J, J)
-    anc = eye.clone()  # anc[b, k, j]: j is an ancestor-or-self of k
-    for k in range(1, J):
-        p = parents[:, k].clamp_min(0)
-        anc[:, k] = anc[:, k] | anc[torch.arange(B, device=parents.device), p]
-    return anc.transpose(1, 2)
-
-
-def _nearest_mapped_ancestor(parents: torch.Tensor, has: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """(B, J) the nearest strict ancestor of each node that has a goal, and (B, J) the same counting
-    the node itself; the base (node 0) at worst."""
-    B, J = parents.shape
-    idx = torch.arange(B, device=parents.device)
-    self_or = torch.zeros(B, J, dtype=torch.long, device=parents.device)  # nearest mapped ancestor-or-self
-    out = torch.zeros(B, J, dtype=torch.long, device=parents.device)
-    for k in range(1, J):
-        p = parents[:, k].clamp_min(0)
-        out[:, k] = self_or[idx, p]
-        self_or[:, k] = torch.where(has[:, k], torch.full_like(p, k), out[:, k])
-    return out, self_or

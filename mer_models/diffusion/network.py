@@ -2,9 +2,11 @@
 
 * Tokens: one per node per frame, ``T * J`` per motion. The base node and the other nodes have
   separate input encoders (their 9 features mean different things) and separate output heads.
-* Positional encoding: fixed sinusoids of the frame index plus sinusoids of the node index (the
-  skeleton's topological order), added to every token, so the order of all ``T * J`` tokens is
-  preserved; the graph itself enters through GRPE (``psi``) and the condition tokens.
+* Positional encoding: fixed sinusoids of the frame index and of the node index (the skeleton's
+  topological order) on every token (:func:`position_codes`): added into the same channels, or,
+  with ``ModelConfig.split_encoding``, the frame's in the first half of the channels and the
+  node's in the second, so that (frame t, node j) and (frame j, node t) differ; the graph itself
+  enters through GRPE (``psi``) and the condition tokens.
 * Reference encoder: a decoder over the reference motion whose cross attention sees the reference
   skeleton's three graph conditions (rotation axes, link vectors, joint limits).
 * Denoiser: a decoder over the noisy target motion (plus the noise-level embedding) whose cross
@@ -28,7 +30,7 @@ from mer_models.config import ModelConfig
 
 from .attention import MultiConditionCrossAttention, SpatialAttention, TemporalAttention
 
-__all__ = ["RetargetNet", "sinusoids", "JOINT_OUT", "GOAL_DIM"]
+__all__ = ["RetargetNet", "sinusoids", "node_codes", "position_codes", "JOINT_OUT", "GOAL_DIM"]
 
 JOINT_OUT = 7  # a joint node's live features: angle, position (3), velocity (3)
 #: Channels of a target token's goal input (``ModelConfig.goal_input``; :meth:`RetargetModel.goal_features`):
@@ -49,36 +51,63 @@ def sinusoids(n: int, dim: int, device=None) -> torch.Tensor:
     return out
 
 
+def node_codes(J: int, dim: int, split: bool, device=None) -> torch.Tensor:
+    """(J, dim) the node-index code: sinusoids over all channels, or (``split``) over the second half
+    ``dim - dim // 2`` channels, zero in the first (the frame code's)."""
+    if not split:
+        return sinusoids(J, dim, device)
+    return torch.cat([torch.zeros(J, dim // 2, device=device), sinusoids(J, dim - dim // 2, device)], -1)
+
+
+def position_codes(T: int, J: int, dim: int, split: bool, device=None) -> torch.Tensor:
+    """(T, J, dim) the code added to the token of (frame t, node j).
+
+    Not ``split``: ``s(t) + s(j)`` with the same sinusoids ``s`` over all channels (symmetric: (t, j)
+    and (j, t) get the same code). ``split``: ``[s_{dim//2}(t), s_{dim-dim//2}(j)]``, the frame in the
+    first half of the channels and the node in the second (equal only if the frame and the node are).
+    """
+    if not split:
+        return sinusoids(T, dim, device)[:, None] + sinusoids(J, dim, device)[None]
+    frame = torch.cat([sinusoids(T, dim // 2, device), torch.zeros(T, dim - dim // 2, device=device)], -1)
+    return frame[:, None] + node_codes(J, dim, True, device)[None]
+
+
 def _mlp(i: int, h: int, o: int) -> nn.Sequential:
     return nn.Sequential(nn.Linear(i, h), nn.SiLU(), nn.Linear(h, o))
 
 
 class TokenEncoder(nn.Module):
-    """Separate input encoders for the base node and the other nodes: (B, T, J, 9) → (B, T, J, H)."""
+    """Separate input encoders for the base node and the other nodes, plus the position code
+    (:func:`position_codes`): (B, T, J, 9) → (B, T, J, H)."""
 
-    def __init__(self, hidden: int) -> None:
+    def __init__(self, hidden: int, split: bool = False) -> None:
         super().__init__()
         self.base = _mlp(FEATURE_DIM, hidden, hidden)
         self.joint = _mlp(FEATURE_DIM, hidden, hidden)
+        self.split = split
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         B, T, J, _ = x.shape
         tokens = torch.cat([self.base(x[:, :, :1]), self.joint(x[:, :, 1:])], dim=2)
-        return tokens + sinusoids(T, tokens.shape[-1], x.device)[None, :, None] + sinusoids(J, tokens.shape[-1], x.device)[None, None]
+        H = tokens.shape[-1]
+        if self.split:
+            return tokens + position_codes(T, J, H, True, x.device)[None]
+        return tokens + sinusoids(T, H, x.device)[None, :, None] + sinusoids(J, H, x.device)[None, None]  # summed, as trained
 
 
 class GraphConditions(nn.Module):
     """The three per-node skeleton conditions as tokens: rotation axes, link vectors, joint limits."""
 
-    def __init__(self, hidden: int) -> None:
+    def __init__(self, hidden: int, split: bool = False) -> None:
         super().__init__()
         self.axes = _mlp(3, hidden, hidden)
         self.links = _mlp(4, hidden, hidden)
         self.limits = _mlp(4, hidden, hidden)
+        self.split = split
 
     def forward(self, g: BatchGraph) -> list[torch.Tensor]:
         J = g.parents.shape[1]
-        node_pe = sinusoids(J, self.axes[-1].out_features, g.parents.device)[None]
+        node_pe = node_codes(J, self.axes[-1].out_features, self.split, g.parents.device)[None]
         length = g.offsets.norm(dim=-1, keepdim=True)
         lim = torch.stack([g.lower, g.upper, g.upper - g.lower, g.revolute.to(g.lower.dtype)], -1)
         return [
@@ -116,8 +145,8 @@ class DecoderLayer(nn.Module):
 class Decoder(nn.Module):
     def __init__(self, cfg: ModelConfig, with_reference: bool) -> None:
         super().__init__()
-        self.tokens = TokenEncoder(cfg.hidden)
-        self.conditions = GraphConditions(cfg.hidden)
+        self.tokens = TokenEncoder(cfg.hidden, cfg.split_encoding)
+        self.conditions = GraphConditions(cfg.hidden, cfg.split_encoding)
         self.layers = nn.ModuleList([DecoderLayer(cfg, with_reference) for _ in range(cfg.layers)])
         self.final_norm = nn.LayerNorm(cfg.hidden) if cfg.norm_first else None  # pre-norm: the stream is not normalised
 

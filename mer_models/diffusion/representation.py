@@ -7,7 +7,10 @@ target. The model therefore sees every window facing +x from the origin (heading
 invariance by construction); outputs are mapped back to the world exactly.
 
 **Base orientation.** Rotation vectors are unwrapped along time (:func:`unwrap_rotvec`), so a
-window that turns through 180 degrees has no jump from +pi to -pi.
+window that turns through 180 degrees has no jump from +pi to -pi. With
+``ModelConfig.goal_frame_rotation`` the diffusion space holds the base orientation relative to the
+base's orientation goal instead: ``R = R_goal Exp(delta)``, ``delta = Log(R_goal^T R)`` in the goal's
+frame (:func:`rotation_in_frame`, :func:`rotation_from_frame`).
 
 **Diffusion space.** Features are divided per channel by fixed scales (angles 1 rad, positions
 ``pos_scale`` m, velocities ``vel_scale`` m/s): no data statistics, so any robot and any dataset
@@ -30,6 +33,8 @@ __all__ = [
     "transform_features",
     "transform_points",
     "unwrap_rotvec",
+    "rotation_in_frame",
+    "rotation_from_frame",
     "channel_scales",
     "normalize",
     "denormalize",
@@ -111,6 +116,19 @@ def unwrap_rotvec(r: torch.Tensor) -> torch.Tensor:
         k = torch.where(n < 1e-6, torch.zeros_like(k), k)
         out.append(cur + 2 * math.pi * k * unit)
     return torch.stack(out, dim=1)
+
+
+def rotation_in_frame(rotvec: torch.Tensor, frame: torch.Tensor) -> torch.Tensor:
+    """``delta = Log(frame^T Exp(rotvec))``, unwrapped along time: (B, T, 3) rotation vectors [rad] and
+    (B, T, 3, 3) frames → (B, T, 3), the rotation seen from ``frame`` (|delta| is the geodesic angle
+    between the two at the first frame)."""
+    rel = frame.transpose(-1, -2) @ axis_angle_to_matrix(rotvec)
+    return unwrap_rotvec(matrix_to_axis_angle(rel))
+
+
+def rotation_from_frame(delta: torch.Tensor, frame: torch.Tensor) -> torch.Tensor:
+    """``frame Exp(delta)``: (..., 3) [rad] and (..., 3, 3) → (..., 3, 3), the inverse of :func:`rotation_in_frame`."""
+    return frame @ axis_angle_to_matrix(delta)
 
 
 def channel_scales(cfg: ModelConfig, J: int, device=None, dtype=torch.float32) -> torch.Tensor:

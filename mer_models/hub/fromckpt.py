@@ -169,6 +169,8 @@ def card_from_checkpoint(
     ``base_repo_id``) is used.
     """
     meta = read_checkpoint_meta(folder)
+    kind = str((meta.get("run") or {}).get("kind", "diffusion"))
+    what_kind = "warm-start" if kind == "warm" else "guided-diffusion"
     robots = meta.get("robots") or {}
     targets = sorted(robots.get("targets", {}))
     references = sorted(robots.get("references", {}))
@@ -191,12 +193,12 @@ def card_from_checkpoint(
     if summary is None:
         if base is not None:
             new = sorted(set(targets) - set(base.targets))
-            summary = f"`{base.name}` fine-tuned for {', '.join(new) or 'its targets'} (mer guided-diffusion retargeting)."
+            summary = f"`{base.name}` fine-tuned for {', '.join(new) or 'its targets'} (mer {what_kind} retargeting)."
         elif recorded is not None:
             what = recorded[0] or recorded[2] or "a checkpoint"
-            summary = f"`{what}` fine-tuned for {data.get('finetune_robot') or 'its targets'} (mer guided-diffusion retargeting)."
+            summary = f"`{what}` fine-tuned for {data.get('finetune_robot') or 'its targets'} (mer {what_kind} retargeting)."
         else:
-            summary = f"mer guided-diffusion retargeting model ({run_name} configuration) for {', '.join(targets) or 'no target'}."
+            summary = f"mer {what_kind} retargeting model ({run_name} configuration) for {', '.join(targets) or 'no target'}."
     if reproduce is None:
         reproduce = str(meta.get("command") or "")
     return ModelCard(
@@ -221,6 +223,7 @@ def card_from_checkpoint(
             "mer_version": meta.get("mer_version"),
             "step": step,
             "config": run_name,
+            **({"kind": kind} if kind != "diffusion" else {}),  # diffusion cards stay as they were written
         },
         license_note=license_note or "",
         reproduce=reproduce,

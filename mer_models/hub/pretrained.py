@@ -80,7 +80,15 @@ def _info(model: torch.nn.Module, run: RunConfig | None, robots: Mapping[str, Ma
 
 
 class PretrainedMixin:
-    """Hub conventions for a ``torch.nn.Module`` built as ``cls(run.model)`` from a checkpoint's configuration."""
+    """Hub conventions for a ``torch.nn.Module`` built as ``cls(cls.config_of(run))`` from a checkpoint's
+    configuration; ``kind`` is the :data:`~mer_models.config.KINDS` entry its checkpoints carry."""
+
+    kind = "diffusion"
+
+    @staticmethod
+    def config_of(run: RunConfig) -> Any:
+        """The section of ``run`` that builds this model class (``run.model`` for the diffusion model)."""
+        return run.model
 
     @classmethod
     def from_folder(cls: type[M], folder: str | Path, device: str | torch.device = "cpu", *, run: RunConfig | None = None) -> M:
@@ -88,7 +96,10 @@ class PretrainedMixin:
         folder = Path(folder)
         if run is None:
             _, run = read_run(folder)
-        model = cls(run.model)  # type: ignore[call-arg]
+        if run.kind != cls.kind:
+            raise CheckpointError(f"{folder} holds a {run.kind!r} model, not a {cls.kind!r} one", path=folder, element="run.kind",
+                                  fix="load it with mer_models.zoo.load (it builds either kind)")  # fmt: skip
+        model = cls(cls.config_of(run))  # type: ignore[call-arg]
         load_weights(model, folder / WEIGHTS)  # type: ignore[arg-type]
         model.to(device).eval()  # type: ignore[attr-defined]
         return model
@@ -125,8 +136,8 @@ class PretrainedMixin:
     ) -> Path:
         """Write ``save_directory`` as a mer checkpoint (``config.json`` + ``model.safetensors``), atomically."""
         info = _info(self, run, robots)
-        if run is not None and run.model != self.cfg:
-            raise CheckpointError("run.model does not describe this network", element="run.model",
+        if run is not None and (run.kind != self.kind or self.config_of(run) != self.cfg):  # type: ignore[attr-defined]
+            raise CheckpointError(f"the run configuration does not describe this {self.kind} network", element="run",
                                   fix="pass the RunConfig the model was built from")
         return save_checkpoint(save_directory, self, info.run, robots=info.robots, data=data if data is not None else info.data,
                                metrics=metrics if metrics is not None else info.metrics, step=info.step if step is None else step)

@@ -47,7 +47,7 @@ def card_data(card: ModelCard):
         library_name=LIBRARY_NAME,
         license=card.license,
         pipeline_tag=PIPELINE_TAG,
-        tags=list(TAGS),
+        tags=[("warm-start" if t == "diffusion" and card.checkpoint.get("kind") == "warm" else t) for t in TAGS],
         mer=card.to_meta(),
     )
 
@@ -124,8 +124,10 @@ def _usage(card: ModelCard) -> str:
         lines.append(f"mer zoo download {card.name}")
     lines += [f"mer zoo info {card.name}", "```", "", "```python", "from mer_models import zoo", "",
               f'ckpt = zoo.load("{card.name}")  # model built from config.json, weights loaded strictly', "",
-              "from mer_models import RetargetModel", "",
-              f'model = RetargetModel.from_pretrained("{card.name}")  # the same, as an nn.Module', "```"]
+              *(["from mer_models.warm import WarmModel", "", f'model = WarmModel.from_pretrained("{card.name}")  # the same, as an nn.Module']
+                if card.checkpoint.get("kind") == "warm" else
+                ["from mer_models import RetargetModel", "", f'model = RetargetModel.from_pretrained("{card.name}")  # the same, as an nn.Module']),
+              "```"]  # fmt: skip
     return "\n".join(lines)
 
 

@@ -45,7 +45,7 @@ from mer_models.solver.ik import DEFAULT_SMOOTH
 from mer_models.solver.optimize import DEFAULT_GN_ITERS, DEFAULT_ITERS, optimize_motion
 from mer_models.zoo.checkpoint import Checkpoint, check_robot, resolve_model
 
-from .long_horizon import prepare_reference, retarget_sequences
+from .long_horizon import prepare_reference, retarget_sequences, warm_sequences
 
 log = logging.getLogger(__name__)
 
@@ -188,7 +188,7 @@ def retarget_features_many(
     opt_gn_iters: int = DEFAULT_GN_ITERS,
     opt_smooth: float = DEFAULT_SMOOTH,
     energy: EnergyConfig | None = None,
-    refine: int = 0,
+    refine: int | None = None,
     progress: Callable[[int, int], None] | None = None,
     bf16: bool = False,
     physics=None,
@@ -202,7 +202,9 @@ def retarget_features_many(
     ``opt_*`` and ``energy`` set the optimiser (``opt_smooth``: its temporal prior,
     :mod:`mer_models.solver.ik`). ``refine`` > 0 warm-starts the optimiser from the model's output for at
     most that many Levenberg-Marquardt iterations on the whole motion (diffusion only;
-    :func:`mer_models.solver.ik.coupled_lm_ik`). ``allow_unseen`` retargets to a
+    :func:`mer_models.solver.ik.coupled_lm_ik`); None: the model's own default (a warm-start model's
+    ``WarmConfig.refine``, the diffusion model's 0). A warm-start checkpoint (``run.kind`` ``warm``,
+    :mod:`mer_models.warm`) runs as the ``diffusion`` method does, in one pass over the whole motion. ``allow_unseen`` retargets to a
     robot the model never saw (zero-shot; the paper fine-tunes instead). ``progress`` gets
     (windows done, windows) of the model's pass. ``bf16``: the network under bfloat16 autocast
     (diffusion only; about twice as fast on CPUs with AMX, :mod:`mer_models.diffusion.precision`).
@@ -247,10 +249,18 @@ def retarget_features_many(
         notes = [zero_shot_notes(checkpoint, t.name, ref.name) for t in tgts]
         run = checkpoint.run
         sampler = run.sampler if guidance is None else SamplerConfig(**{**run.sampler.__dict__, "guidance": float(guidance)})
-        outs = retarget_sequences(
-            checkpoint.model, reference, ref, tgts, sampler, energy=energy or run.energy, fps=fps, steps=steps,
-            seed=seed, etas=etas, prepared=prepared, progress=progress, bf16=bf16,
-        )  # fmt: skip
+        if run.kind == "warm":  # one pass of the warm-start network, finished by its `refine` iterations by default
+            outs = warm_sequences(checkpoint.model, reference, ref, tgts, fps=fps, etas=etas, prepared=prepared, bf16=bf16,
+                                  progress=progress)  # fmt: skip
+            refine = run.warm.refine if refine is None else refine
+        else:
+            outs = retarget_sequences(
+                checkpoint.model, reference, ref, tgts, sampler, energy=energy or run.energy, fps=fps, steps=steps,
+                seed=seed, etas=etas, prepared=prepared, progress=progress, bf16=bf16,
+            )  # fmt: skip
+        refine = refine or 0
+        kind = "warm" if run.kind == "warm" else "diffusion"
+        labels = [kind] * len(tgts)
         if refine > 0:
             device = next(checkpoint.model.parameters()).device
             for i, (t, eta, (feats, scaled, shift, rot_goals)) in enumerate(zip(tgts, etas, prepared)):
@@ -259,7 +269,7 @@ def retarget_features_many(
                                          smooth=opt_smooth, init=init, physics=phys[i])  # fmt: skip
                 out["base_pos"] = out["base_pos"] + shift
                 outs[i] = out
-            labels = [f"diffusion+refine{refine}"] * len(tgts)
+            labels = [f"{kind}+refine{refine}"] * len(tgts)
     else:
         device = next(checkpoint.model.parameters()).device if checkpoint is not None else torch.device("cpu")
         outs = []
@@ -272,7 +282,7 @@ def retarget_features_many(
     for i, (t, eta, prep, out, label) in enumerate(zip(tgts, etas, prepared, outs, labels)):
         _, scaled, shift, _ = prep
         motion = TargetMotion(t, fps, out["q"], out["base_pos"], out["base_rot"])
-        if phys[i] is not None and (method == "optimize" or refine > 0):
+        if phys[i] is not None and (method == "optimize" or (refine or 0) > 0):
             motion = feasible_motion(motion, phys[i].model, physics)
         results.append(RetargetResult(motion, _reference_points(scaled, shift, eta), label, reference_nodes=scaled + shift,
                                       reference_skeleton=ref, prepared=prep, notes=notes[i]))  # fmt: skip

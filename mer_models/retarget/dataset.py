@@ -494,7 +494,12 @@ def retarget_dataset(
     for j in jobs:
         if j.done():
             rows.append(json.loads(j.output("metrics").read_text()))
-    label = f"diffusion+refine{model_kw['refine']}" if method == "diffusion" and model_kw.get("refine") else method
+    label = method
+    if method == "diffusion":  # the model's kind and its refinement (a warm start refines by default)
+        kind = checkpoint.run.kind if checkpoint is not None else "diffusion"
+        k = model_kw.get("refine")
+        k = (checkpoint.run.warm.refine if kind == "warm" and checkpoint is not None else 0) if k is None else k
+        label = f"{kind}+refine{k}" if k else kind
     summary = {
         "source": source, "targets": sorted(set(targets)), "method": label, "workers": used, "jobs": len(jobs),
         "done_before": len(jobs) - len(todo), "done_now": len(todo), "frames": frames_done, "seconds": round(seconds, 3),

@@ -32,7 +32,7 @@ from mer_models.solver.optimize import DEFAULT_GN_ITERS, DEFAULT_ITERS
 from mer_models.zoo.checkpoint import Checkpoint, check_robot
 
 from .artifacts import ARTIFACT_KEYS, motion_artifacts
-from .inference import optimize_batch, sample_batch
+from .inference import model_batch, optimize_batch
 from .metrics import summarize, window_metrics
 
 log = logging.getLogger(__name__)
@@ -276,8 +276,8 @@ def evaluate(
                         over = {k: float(v) for k, v in {"guidance": opts.guidance, "init_noise": opts.init_noise}.items() if v is not None}
                         sampler = SamplerConfig(**{**run.sampler.__dict__, **over})
                         gen = torch.Generator().manual_seed(opts.seed + a)
-                        motion = sample_batch(checkpoint.model, batch, sampler, energy=model_energy, steps=opts.steps, generator=gen,
-                                              bf16=opts.bf16)  # fmt: skip
+                        motion = model_batch(checkpoint.model, batch, sampler, energy=model_energy, steps=opts.steps, generator=gen,
+                                             bf16=opts.bf16)  # fmt: skip
                         if method == "refine":
                             motion = optimize_batch(opt_energy, batch, gn_iters=opts.refine, init=motion, **phys_kw)
                     else:

@@ -31,7 +31,7 @@ from mer_models.solver.energy import energy_terms
 from mer_models.solver.ik import DEFAULT_SMOOTH
 from mer_models.solver.optimize import DEFAULT_FINE, DEFAULT_GN_ITERS, DEFAULT_ITERS, optimize_motion
 
-__all__ = ["SAMPLERS", "sample_conditions", "sample_batch", "optimize_batch", "initial_noise"]
+__all__ = ["SAMPLERS", "sample_conditions", "sample_batch", "model_batch", "optimize_batch", "initial_noise"]
 
 SAMPLERS = {"heun": sample_heun, "euler": sample_euler, "ancestral": sample_euler_ancestral, "feedback": sample_feedback}
 
@@ -100,6 +100,19 @@ def sample_batch(model: RetargetModel, batch: Mapping, sampler: SamplerConfig, *
     cond = model.conditions(batch)
     d = sample_conditions(model, cond, sampler, **kw)
     return model.decode(d, cond)
+
+
+def model_batch(model, batch: Mapping, sampler: SamplerConfig, *, bf16: bool = False, **kw) -> dict[str, torch.Tensor]:
+    """The model's motion of a collated batch, whatever its kind: the warm-start network's one pass
+    (:meth:`mer_models.warm.model.WarmModel.predict`; sampler options do not apply), or the diffusion
+    model's samples (:func:`sample_batch` with ``kw``). ``bf16``: the network under bfloat16 autocast."""
+    from mer_models.warm.model import WarmModel
+
+    if isinstance(model, WarmModel):
+        with network_autocast(next(model.parameters()).device, bf16):
+            out = model.predict(batch)
+        return {k: v.float() for k, v in out.items()}
+    return sample_batch(model, batch, sampler, bf16=bf16, **kw)
 
 
 def optimize_batch(

@@ -29,7 +29,7 @@ from mer_models.batch import batch_features
 from mer_models.config import EnergyConfig, SamplerConfig
 from mer_models.diffusion.model import RetargetModel
 from mer_models.diffusion.precision import network_autocast
-from mer_models.diffusion.representation import normalize, transform_features
+from mer_models.diffusion.representation import transform_features
 
 from .inference import sample_conditions
 
@@ -185,7 +185,7 @@ def retarget_sequences(
                     torch.from_numpy(base_rot[i][s:done]).float()[None].to(dev),
                     fps,
                 )
-                prev = normalize(transform_features(prev, cond.rot, cond.origin), model.cfg) * g.mask[:, None, :, None]
+                prev = model.to_sample(transform_features(prev, cond.rot, cond.origin), cond)
 
                 def wrapper(den, prev=prev, known=known):
                     def inpainted(x, sigma, c):
@@ -204,3 +204,37 @@ def retarget_sequences(
         if progress is not None:
             progress(k + 1, len(starts))
     return [{"q": q[i][:n], "base_pos": base_pos[i][:n] + shift, "base_rot": base_rot[i][:n]} for i in range(len(targets))]
+
+
+def warm_sequences(
+    model,
+    reference: np.ndarray,
+    ref: Skeleton,
+    targets: Sequence[Skeleton],
+    *,
+    fps: float = 30.0,
+    etas: Sequence[np.ndarray] | None = None,
+    prepared: Sequence[tuple] | None = None,
+    bf16: bool = False,
+    progress: Callable[[int, int], None] | None = None,
+) -> list[dict[str, np.ndarray]]:
+    """Retarget a whole motion (N, Jr, 9) with the warm-start model (:class:`~mer_models.warm.model.WarmModel`)
+    to every robot of ``targets``: one pass over the whole motion per target (the network sees a few
+    frames around each, :meth:`~mer_models.warm.model.WarmModel.predict` bounds its memory), no
+    windows to stitch. Returns per target ``q`` (N, Jt) [rad], ``base_pos`` (N, 3) [m] (world frame)
+    and ``base_rot`` (N, 3, 3)."""
+    etas = list(etas) if etas is not None else [joint_map(t, ref) for t in targets]
+    prepared = list(prepared) if prepared is not None else [prepare_reference(reference, ref, t) for t in targets]
+    dev = next(model.parameters()).device
+    outs = []
+    for i, (t, eta, (feats, scaled, shift, (goal_rot, rot_mask))) in enumerate(zip(targets, etas, prepared)):
+        batch = _window_batch(feats, scaled, ref, t, eta)
+        batch["ref_goal_rot"] = torch.from_numpy(goal_rot.astype(np.float32))[None]
+        batch["ref_rot_mask"] = torch.from_numpy(rot_mask)[None]
+        with network_autocast(dev, bf16):
+            out = model.predict(batch, fps)
+        outs.append({"q": out["q"][0].double().cpu().numpy(), "base_pos": out["base_pos"][0].double().cpu().numpy() + shift,
+                     "base_rot": out["base_rot"][0].double().cpu().numpy()})  # fmt: skip
+        if progress is not None:
+            progress(i + 1, len(targets))
+    return outs

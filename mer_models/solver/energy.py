@@ -84,6 +84,7 @@ def energy_terms(
     pred_pos: torch.Tensor | None = None,
     goal_rot: torch.Tensor | None = None,
     rot_mask: torch.Tensor | None = None,
+    fk: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> dict[str, torch.Tensor]:
     """Weighted terms of ``f_kin`` per sample, each (B,), plus ``"total"``.
 
@@ -94,8 +95,9 @@ def energy_terms(
         pred_pos: (B, T, Jt, 3) predicted position features for ``L_cst`` (0 when omitted).
         goal_rot, rot_mask: (B, T, Jr, 3, 3) orientation goals and (B, Jr) the tracked reference
             nodes, for ``L_ori`` (0 when omitted).
+        fk: ``batch_fk(graph, q, base_pos, base_rot)`` when the caller has it already.
     """
-    fk_pos, fk_rot = batch_fk(graph, q, base_pos, base_rot)
+    fk_pos, fk_rot = fk if fk is not None else batch_fk(graph, q, base_pos, base_rot)
     goals, pairs = keypoint_goals(eta.to(fk_pos.dtype), goal.to(fk_pos.dtype))
     pairs = pairs & graph.mask
     fk_vel = finite_difference(fk_pos, fps, dim=-3)

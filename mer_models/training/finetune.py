@@ -13,6 +13,14 @@ as they are (the targets the base already knows, so it does not forget them) and
 its own: as for every target without data, the trainer's clean sample is the optimisation
 baseline's solution on that window, computed on the fly (docs/model.md).
 
+Both model kinds fine-tune alike: a diffusion base (``run.kind`` ``diffusion``) through the EDM
+trainer, a warm-start base (``warm``, :mod:`mer_models.warm`) through its own loop, which solves the
+samples without a teacher with ``run.train.opt_iters`` LM iterations. A warm base's ``--synthetic``
+windows are ``WarmConfig.crop`` frames long (what its trainer crops every window to anyway, so no
+solved frame is thrown away), a diffusion base's ``ModelConfig.frames``. Where the base's learning
+rate decays (``lr_decay_steps`` > 0), the decay is spread over the fine-tune's own ``steps`` (after
+the base's warm-up), so a short fine-tune ends at the base's final rate instead of running at its peak.
+
 The checkpoint records the base (zoo name, repository, pinned revision, sha256 of its weights, and
 the base's own data description, so the licence of LAFAN1-derived weights carries over) under
 ``data``; ``mer zoo publish`` and the card renderer read it back ("fine-tuned from ...").
@@ -33,14 +41,15 @@ from mer_data.kinematics.jointmap import joint_map
 from mer_data.motion.samples import TrainingSample
 from mer_data.robots.registry import get_skeleton, load_robot
 from mer_data.skeleton import Skeleton
-from mer_models.hub.checkpoint_files import WEIGHTS
+from mer_models.config import RunConfig
+from mer_models.hub.checkpoint_files import CONFIG, WEIGHTS
 from mer_models.zoo.checkpoint import load_checkpoint
 
 from .train import TrainResult, train
 
 log = logging.getLogger(__name__)
 
-__all__ = ["WithNewTarget", "finetune", "base_record"]
+__all__ = ["WithNewTarget", "finetune", "base_record", "window_frames"]
 
 
 class WithNewTarget(torch.utils.data.Dataset):
@@ -100,6 +109,30 @@ def base_record(spec: str | Path, revision: str | None = None) -> tuple[Path, di
     return res.folder, {k: v for k, v in rec.items() if v is not None}
 
 
+def window_frames(run: RunConfig) -> int:
+    """Frames of the ``--synthetic`` windows: a warm base's training crop (``WarmConfig.crop``, its
+    trainer would cut every longer window to it after solving all of it), else ``ModelConfig.frames``."""
+    if run.kind == "warm" and run.warm.crop > 0:
+        return run.warm.crop
+    return run.model.frames
+
+
+def _decay_steps(run: RunConfig, steps: int, out: Path, resume: bool) -> int:
+    """The fine-tune's ``lr_decay_steps``: 0 (constant rate) where the base has none; on ``--resume``,
+    what the fine-tune recorded (so a resumed run may ask for more ``--steps``); else the fine-tune's
+    steps after the warm-up."""
+    if run.train.lr_decay_steps <= 0:
+        return 0
+    if resume and (out / CONFIG).is_file():
+        from mer_models.hub.checkpoint_files import read_meta
+
+        try:
+            return int(read_meta(out)["run"]["train"]["lr_decay_steps"])
+        except (KeyError, TypeError, ValueError):
+            pass  # an odd record: train() names the difference when it compares the configurations
+    return max(1, steps - run.train.warmup)
+
+
 def _check_pairs(robot: Skeleton, references: Sequence[Skeleton]) -> None:
     for ref in references:
         eta = joint_map(robot, ref)
@@ -152,6 +185,7 @@ def finetune(
     # reference window (the base may have trained with them; a training-speed option, not the model's)
     over["ref_group"] = 1
     run = run.replace(train=dataclasses.replace(run.train, **over))
+    run = run.replace(train=dataclasses.replace(run.train, lr_decay_steps=_decay_steps(run, steps, Path(out), resume)))
     if robot in ckpt.robots.get("targets", {}):
         log.warning("the base already has %r among its targets; training continues on it", robot)
     record["base_step"] = ckpt.step
@@ -162,7 +196,7 @@ def finetune(
         data = ShardDataset(list(shards), split=None if split == "all" else split)
         if len(data) == 0:
             raise MerError(f"the shards hold no {split!r} windows", path=str(shards[0]),
-                           fix="build them with a training split (mer shards build --split paper|all) or pass --split all")
+                           fix="build them with a training split (mer shards build --split paper|all) or pass --split all")  # fmt: skip
         refs = {name: get_skeleton(name) for name in sorted({w.robot for w in data.windows})}
         info: dict[str, Any] = {"shards": [str(p) for p in data.paths], "split": split, "samples": len(data)}
     else:
@@ -178,16 +212,17 @@ def finetune(
                 usable.append(t)
             except MerError:
                 log.warning("the base's target %r is not registered here; it is left out of the replayed data", t)
-        data = SyntheticDataset(source, tuple(usable or [source]), size=synthetic, frames=run.model.frames, augment=True,
+        frames = window_frames(run)
+        data = SyntheticDataset(source, tuple(usable or [source]), size=synthetic, frames=frames, augment=True,
                                 seed=run.train.seed)  # fmt: skip
         refs = {source: get_skeleton(source)}
-        info = {"synthetic": synthetic, "source": source, "targets": [*usable, robot], "samples": synthetic}
+        info = {"synthetic": synthetic, "source": source, "targets": [*usable, robot], "samples": synthetic, "frames": frames}
     _check_pairs(skel, list(refs.values()))
     dataset = WithNewTarget(data, skel, new_fraction, run.train.seed)
     info.update({"finetune_robot": robot, "finetune_fraction": new_fraction, **record})
     known_robots = {side: dict(v) for side, v in ckpt.robots.items()}
     known_robots.setdefault("targets", {})[robot] = skel.fingerprint  # a fraction of every epoch targets it
     log.info("fine-tuning %s for %r: %d samples, %.0f%% retargeted to it", record.get("base_model") or folder, robot,
-             len(dataset), 100 * new_fraction)
+             len(dataset), 100 * new_fraction)  # fmt: skip
     return train(run, dataset, out, steps=steps, resume=resume, device=device, data_info=info, progress=progress,
-                 init=None if resume else folder / WEIGHTS, known_robots=known_robots)
+                 init=None if resume else folder / WEIGHTS, known_robots=known_robots)  # fmt: skip

@@ -43,7 +43,7 @@ from mer_models.config import RunConfig, from_dict
 from mer_models.diffusion.edm import denoising_loss, sample_sigma
 from mer_models.diffusion.model import Conditions, RetargetModel
 from mer_models.diffusion.precision import native_bf16
-from mer_models.diffusion.representation import normalize, transform_features
+from mer_models.diffusion.representation import denormalize, transform_features
 from mer_models.hub.checkpoint_files import (
     CONFIG,
     OPTIMIZER,
@@ -90,21 +90,22 @@ def clean_samples(model: RetargetModel, batch: Mapping, cond: Conditions, run: R
     Read from the shards' teacher files where the batch has them (``has_teacher``: ``mer shards
     solve``); else solved on the fly (``run.train.opt_iters`` Levenberg-Marquardt iterations), the
     fallback. A target robot's own motion window is never ``x``: it is not what the energy tracks
-    (the scaled reference), so one teacher serves every target (docs/model.md).
+    (the scaled reference), so one teacher serves every target (docs/model.md). Both enter the
+    diffusion space through :meth:`RetargetModel.to_sample` (for ``goal_frame_rotation`` models the
+    base rotation becomes ``delta = Log(R_goal^T R_teacher)``, what the sampler decodes).
     """
     dev = cond.rot.device
     B = cond.rot.shape[0]
     has = batch["has_teacher"].to(dev) if "has_teacher" in batch else torch.zeros(B, dtype=torch.bool, device=dev)
-    mask = cond.tgt_graph.mask[:, None, :, None]
     x = torch.zeros(cond.shape, device=dev)
     if bool(has.any()):
         t = transform_features(batch["teacher"].to(dev, torch.float32), cond.rot, cond.origin)
-        x = torch.where(has[:, None, None, None], normalize(t, model.cfg) * mask, x)
+        x = torch.where(has[:, None, None, None], model.to_sample(t, cond), x)
     if bool((~has).any()):
         with torch.no_grad():
             sel = torch.nonzero(~has).flatten()
             g = cond.tgt_graph.select(sel)
-            ref = model.physical(cond.reference[sel])
+            ref = denormalize(cond.reference[sel], model.cfg)
             out = optimize_motion(
                 run.energy, g, cond.eta[sel], cond.goal[sel], axis_angle_to_matrix(ref[:, :, 0, 0:3]),
                 iters=0, gn_iters=run.train.opt_iters, fps=cond.fps,
@@ -114,7 +115,7 @@ def clean_samples(model: RetargetModel, batch: Mapping, cond: Conditions, run: R
             feats = batch_features(g, out["q"], out["base_pos"], out["base_rot"], cond.fps)
             eye = torch.eye(3, device=feats.device).expand(len(sel), 3, 3)
             feats = transform_features(feats, eye, torch.zeros(len(sel), 3, device=feats.device))  # unwrap rotvecs
-            x = x.index_copy(0, sel, normalize(feats, model.cfg) * g.mask[:, None, :, None])
+            x = x.index_copy(0, sel, model.to_sample(feats, cond, sel))
     return x
 
 
@@ -278,6 +279,11 @@ def train(
         known_robots: robots (``targets``/``references`` -> name -> fingerprint) recorded in the
             checkpoint in addition to those the batches show (fine-tuning: the base's robots).
     """
+    if run.kind == "warm":  # the warm-start model has its own loop (one process)
+        from .warm import train_warm
+
+        return train_warm(run, dataset, out, steps=steps, resume=resume, device=device, bf16=bf16, num_workers=num_workers,
+                          data_info=data_info, progress=progress, init=init, known_robots=known_robots)  # fmt: skip
     out = Path(out)
     rank, world = _dist()
     if run.train.batch_size % world:

@@ -1,4 +1,5 @@
-"""A checkpoint loaded: the model (:class:`~mer_models.diffusion.model.RetargetModel`) and its metadata.
+"""A checkpoint loaded: the model (the diffusion model :class:`~mer_models.diffusion.model.RetargetModel` or
+the warm start :class:`~mer_models.warm.model.WarmModel`, as ``run.kind`` says) and its metadata.
 
 The folder format itself (``config.json`` + ``model.safetensors``, written atomically, read
 strictly) is :mod:`mer_models.hub.checkpoint_files`; this module builds the network from it, by
@@ -21,6 +22,7 @@ from mer_models.diffusion.model import RetargetModel
 from mer_models.hub.checkpoint_files import is_dir, read_run
 from mer_models.hub.registry import Registry
 from mer_models.hub.resolve import download, resolve
+from mer_models.warm.model import WarmModel
 
 log = logging.getLogger(__name__)
 
@@ -33,7 +35,7 @@ class Checkpoint:
 
     path: Path
     run: RunConfig
-    model: RetargetModel
+    model: RetargetModel | WarmModel
     robots: dict[str, dict[str, str]] = field(default_factory=dict)
     data: dict[str, Any] = field(default_factory=dict)
     metrics: dict[str, Any] = field(default_factory=dict)
@@ -53,7 +55,7 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> Che
     """Build the model from ``config.json`` and load ``model.safetensors`` strictly."""
     path = Path(path)
     meta, run = read_run(path)
-    model = RetargetModel.from_folder(path, device, run=run)
+    model = (WarmModel if run.kind == "warm" else RetargetModel).from_folder(path, device, run=run)
     return Checkpoint(path, run, model, meta["robots"], meta.get("data", {}), meta.get("metrics", {}), int(meta["step"]))
 
 

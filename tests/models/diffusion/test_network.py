@@ -15,13 +15,23 @@ from mer_models.diffusion.model import RetargetModel
 
 @pytest.fixture(
     scope="module",
-    params=[(False, False, False), (True, False, False), (True, True, False), (True, True, True)],
-    ids=["reference-only", "goal-input", "goal-prior", "pre-norm"],
+    params=[
+        (False, False, False, False),
+        (True, False, False, False),
+        (True, True, False, False),
+        (True, True, True, False),
+        (True, True, False, True),
+        (False, False, False, True),
+    ],
+    ids=["reference-only", "goal-input", "goal-prior", "pre-norm", "goal-prior-fixed", "reference-only-fixed"],
 )
 def model(request):
+    """``fixed``: split frame/node encodings and the base rotation in the goal's frame (issue 42)."""
     torch.manual_seed(0)
-    goal_input, goal_prior, norm_first = request.param
-    m = RetargetModel(dataclasses.replace(MICRO, goal_input=goal_input, goal_prior=goal_prior, norm_first=norm_first)).eval()
+    goal_input, goal_prior, norm_first, fixed = request.param
+    cfg = dataclasses.replace(MICRO, goal_input=goal_input, goal_prior=goal_prior, norm_first=norm_first,
+                              split_encoding=fixed, goal_frame_rotation=fixed)  # fmt: skip
+    m = RetargetModel(cfg).eval()
     with torch.no_grad():  # non-trivial output heads (they start at zero)
         for head in (m.net.base_head, m.net.joint_head):
             head.weight.normal_(0, 0.5)

@@ -43,12 +43,12 @@ def test_the_wheel_ships_every_card_and_the_template(wheel):
     for folder in (REPO / "mer_models" / "bundled").glob("*/"):
         for f in folder.iterdir():
             assert f"mer_models/bundled/{folder.name}/{f.name}" in names
-    # the bundled weights are the default model's, and only those (the retired demo model no longer ships)
+    # the bundled weights are the default model's and the warm start's, and only those (the retired demo model no longer ships)
     from mer_models.zoo import DEFAULT_MODEL
 
     bundled = {n.split("/")[2] for n in names if n.startswith("mer_models/bundled/")}
-    assert bundled == {DEFAULT_MODEL} == {"mer-base"}
-    assert "mer_models/cards/mer-base.md" in names and not any("mer-tiny-synthetic" in n for n in names)
+    assert bundled == {DEFAULT_MODEL, "mer-warm"} == {"mer-base", "mer-warm"}
+    assert {"mer_models/cards/mer-base.md", "mer_models/cards/mer-warm.md"} <= names and not any("mer-tiny-synthetic" in n for n in names)
 
 
 def test_list_models_works_from_the_installed_wheel(wheel, tmp_path):
