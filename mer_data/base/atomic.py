@@ -79,7 +79,17 @@ def owner_alive(host: str, pid: int, mtime: float | None = None) -> bool:
         return False
     except (PermissionError, OSError):
         return True
-    return True
+    return not _zombie(pid)
+
+
+def _zombie(pid: int) -> bool:
+    """Whether ``pid`` has exited but is not yet reaped (Linux ``/proc``: state Z or X). A killed
+    writer whose parent died too waits for init to reap it: its files are already abandoned."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat[stat.rfind(")") + 2 : stat.rfind(")") + 3] in ("Z", "X")
 
 
 def _owned_name(kind: str, final: Path) -> Path:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import stat
+import time
 
 import pytest
 
@@ -64,3 +65,26 @@ def test_atomic_dir_failure_keeps_old_folder(tmp_path):
         atomic_dir(final, half)
     assert sorted(x.name for x in final.iterdir()) == ["one.txt"]
     assert sorted(x.name for x in tmp_path.iterdir()) == ["robot"]
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="needs Linux /proc to see a process's state")
+def test_an_exited_writer_not_yet_reaped_is_not_alive():
+    """A killed writer whose parent died with it stays a zombie until init reaps it: its temporary
+    files are abandoned all the same (a resumed run sweeps them)."""
+    from mer_data.base.atomic import owner_alive, owner_tag
+
+    host = owner_tag().split("~")[0]
+    pid = os.fork()
+    if pid == 0:
+        os._exit(0)
+    try:
+        for _ in range(500):  # until the child has exited (a zombie: not reaped yet)
+            with open(f"/proc/{pid}/stat") as fh:
+                if fh.read().rsplit(")", 1)[1].split()[0] == "Z":
+                    break
+            time.sleep(0.01)
+        assert not owner_alive(host, pid)
+        assert owner_alive(host, os.getppid())  # a running process is alive
+    finally:
+        os.waitpid(pid, 0)
+    assert not owner_alive(host, pid)  # reaped: gone
