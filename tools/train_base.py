@@ -163,31 +163,33 @@ def _require_synthetic(meta: dict, run_dir: Path) -> None:
                                fix="keep LAFAN1-trained weights outside the repository; bundle a run on synthetic shards")  # fmt: skip
 
 
-def bundle_step(run_dir: Path, metrics: dict | None, history: str | None = None) -> Path:
-    """Copy ``config.json`` (training metrics + ``metrics`` as its evaluation) and the weights of
-    ``run_dir`` into ``mer_models/bundled/mer-base/``, replacing what is there atomically."""
+def require_every_robot(meta: dict, run_dir: Path, name: str) -> None:
+    """Refuse a run that lacks a built-in robot as target or reference, or that trained on other
+    skeletons of them than this checkout's (fingerprints differ)."""
     from mer_data.base.errors import PublishError
     from mer_data.robots.registry import get_skeleton
-    from mer_models.hub.fromckpt import read_checkpoint_meta
-    from mer_models.hub.registry import bundled_dir
 
-    read_checkpoint_meta(run_dir)  # a mer checkpoint with config.json and model.safetensors, or a clear error
-    meta = json.loads((run_dir / "config.json").read_text())
     robots = meta.get("robots") or {}
     have = {k: sorted(robots.get(k, {})) for k in ("targets", "references")}
     if have != {"targets": sorted(ROBOTS), "references": sorted(ROBOTS)}:
-        raise PublishError(f"{run_dir} is not a mer-base checkpoint: its robots are {have}, mer-base needs every built-in "
+        raise PublishError(f"{run_dir} is not a {name} checkpoint: its robots are {have}, {name} needs every built-in "
                            f"robot ({' '.join(ROBOTS)}) as target and as reference", path=run_dir / "config.json", element="robots")
     stale = sorted({r for k in ("targets", "references") for r, fp in robots[k].items() if fp != get_skeleton(r).fingerprint})
     if stale:
         raise PublishError(f"{run_dir} was trained on other skeletons of {', '.join(stale)} than the built-in ones of this "
                            "checkout (skeleton fingerprints differ)", path=run_dir / "config.json", element="robots",
                            fix="train on shards built from this checkout's robots")  # fmt: skip
+
+
+def bundle_step(run_dir: Path, metrics: dict | None, history: str | None = None) -> Path:
+    """Copy ``config.json`` (training metrics + ``metrics`` as its evaluation) and the weights of
+    ``run_dir`` into ``mer_models/bundled/mer-base/``, replacing what is there atomically."""
+    from mer_models.hub.fromckpt import read_checkpoint_meta
+
+    read_checkpoint_meta(run_dir)  # a mer checkpoint with config.json and model.safetensors, or a clear error
+    meta = json.loads((run_dir / "config.json").read_text())
+    require_every_robot(meta, run_dir, NAME)
     _require_synthetic(meta, run_dir)
-    dest = bundled_dir() / NAME
-    tmp = dest.parent / f".tmp-{NAME}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
     meta["metrics"] = {"train": meta.get("metrics", {}).get("train", {})}
     if metrics:
         meta["metrics"]["evaluation (mer evaluate)"] = metrics
@@ -197,8 +199,20 @@ def bundle_step(run_dir: Path, metrics: dict | None, history: str | None = None)
     }
     if history:
         meta["data"]["history"] = history
+    return install_bundle(NAME, meta, run_dir / "model.safetensors")
+
+
+def install_bundle(name: str, meta: dict, weights: Path) -> Path:
+    """``meta`` as ``config.json`` and ``weights`` into ``mer_models/bundled/<name>/``, replacing what is
+    there in one rename (``tools/train_base.py`` and ``tools/train_warm.py``)."""
+    from mer_models.hub.registry import bundled_dir
+
+    dest = bundled_dir() / name
+    tmp = dest.parent / f".tmp-{name}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
     (tmp / "config.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
-    shutil.copy2(run_dir / "model.safetensors", tmp / "model.safetensors")
+    shutil.copy2(weights, tmp / "model.safetensors")
     for f in tmp.iterdir():
         f.chmod(0o644)
     shutil.rmtree(dest, ignore_errors=True)

@@ -22,8 +22,6 @@ import argparse
 import dataclasses
 import json
 import logging
-import shutil
-import subprocess
 import sys
 from pathlib import Path
 
@@ -31,15 +29,9 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tools"))
 
+from train_base import BUILD, ROBOTS, _require_synthetic, install_bundle, mer, require_every_robot  # noqa: E402 (mer-base's data and checks)
+
 NAME = "mer-warm"
-ROBOTS = ("g1", "h1", "h1_2", "atlas", "oli", "tron1", "talos", "valkyrie")
-BUILD = ["--synthetic", "8", "--synthetic-seconds", "20", "--robots", *ROBOTS, "--targets", *ROBOTS, "--augment", "1"]
-
-
-def mer(*args: str) -> None:
-    cmd = [sys.executable, "-m", "mer_models", *args]
-    print("+", " ".join(cmd[2:]), flush=True)
-    subprocess.run(cmd, cwd=REPO, check=True)
 
 
 def taught(shards: Path) -> list[Path]:
@@ -83,34 +75,17 @@ def bundle_step(run_dir: Path, summary: str | None = None, metrics: dict | None 
     """``config.json`` + weights of ``run_dir`` into ``mer_models/bundled/mer-warm/`` (refused unless every
     built-in robot is a target and a reference and every training shard is synthetic), then its card
     ``cards/models/mer-warm.md`` and the packaged copy."""
-    from train_base import _require_synthetic  # the same licence check as mer-base's
-
-    from mer_data.base.errors import PublishError
     from mer_models.hub.fromckpt import DATASETS, card_from_checkpoint, read_checkpoint_meta
-    from mer_models.hub.registry import bundled_dir, source_cards_dir, write_card
+    from mer_models.hub.registry import source_cards_dir, write_card
 
     read_checkpoint_meta(run_dir)
     meta = json.loads((run_dir / "config.json").read_text())
-    robots = meta.get("robots") or {}
-    have = {k: sorted(robots.get(k, {})) for k in ("targets", "references")}
-    if have != {"targets": sorted(ROBOTS), "references": sorted(ROBOTS)}:
-        raise PublishError(f"{run_dir}: its robots are {have}; mer-warm needs every built-in robot as target and reference",
-                           path=run_dir / "config.json", element="robots")  # fmt: skip
+    require_every_robot(meta, run_dir, NAME)
     _require_synthetic(meta, run_dir)
-    dest = bundled_dir() / NAME
-    tmp = dest.parent / f".tmp-{NAME}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
     meta["metrics"] = {"train": meta.get("metrics", {}).get("train", {}), **({"evaluation (tools/bench_warm.py)": metrics} if metrics else {})}
     meta["data"] = {k: v for k, v in meta.get("data", {}).items() if k != "shards"} | {
         "shards": f"tools/train_warm.py: mer shards build {' '.join(BUILD)}"}
-    (tmp / "config.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
-    shutil.copy2(run_dir / "model.safetensors", tmp / "model.safetensors")
-    for f in tmp.iterdir():
-        f.chmod(0o644)
-    shutil.rmtree(dest, ignore_errors=True)
-    tmp.rename(dest)
-    print(f"bundle: {dest} ({sum(p.stat().st_size for p in dest.iterdir()) / 1e6:.2f} MB)")
+    dest = install_bundle(NAME, meta, run_dir / "model.safetensors")
     w = meta["run"]["warm"]
     text = summary or (
         "The warm-start model: a cheap per-frame network (no reference encoder) whose output "

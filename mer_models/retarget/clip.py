@@ -252,15 +252,13 @@ def retarget_features_many(
         if run.kind == "warm":  # one pass of the warm-start network, finished by its `refine` iterations by default
             outs = warm_sequences(checkpoint.model, reference, ref, tgts, fps=fps, etas=etas, prepared=prepared, bf16=bf16,
                                   progress=progress)  # fmt: skip
-            refine = run.warm.refine if refine is None else refine
         else:
             outs = retarget_sequences(
                 checkpoint.model, reference, ref, tgts, sampler, energy=energy or run.energy, fps=fps, steps=steps,
                 seed=seed, etas=etas, prepared=prepared, progress=progress, bf16=bf16,
             )  # fmt: skip
-        refine = refine or 0
-        kind = "warm" if run.kind == "warm" else "diffusion"
-        labels = [kind] * len(tgts)
+        refine = model_refine(checkpoint, refine)
+        labels = [model_label(checkpoint, refine)] * len(tgts)
         if refine > 0:
             device = next(checkpoint.model.parameters()).device
             for i, (t, eta, (feats, scaled, shift, rot_goals)) in enumerate(zip(tgts, etas, prepared)):
@@ -269,7 +267,6 @@ def retarget_features_many(
                                          smooth=opt_smooth, init=init, physics=phys[i])  # fmt: skip
                 out["base_pos"] = out["base_pos"] + shift
                 outs[i] = out
-            labels = [f"{kind}+refine{refine}"] * len(tgts)
     else:
         device = next(checkpoint.model.parameters()).device if checkpoint is not None else torch.device("cpu")
         outs = []
@@ -287,6 +284,21 @@ def retarget_features_many(
         results.append(RetargetResult(motion, _reference_points(scaled, shift, eta), label, reference_nodes=scaled + shift,
                                       reference_skeleton=ref, prepared=prep, notes=notes[i]))  # fmt: skip
     return results
+
+
+def model_refine(checkpoint: Checkpoint | None, refine: int | None) -> int:
+    """The refinement iterations of a model run: ``refine``, or the model's own default when None (a
+    warm start's ``WarmConfig.refine``, the diffusion model's 0)."""
+    if refine is not None:
+        return refine
+    return checkpoint.run.warm.refine if checkpoint is not None and checkpoint.run.kind == "warm" else 0
+
+
+def model_label(checkpoint: Checkpoint | None, refine: int | None) -> str:
+    """What a model run is called in summaries: its kind, with ``+refineK`` when refined."""
+    kind = checkpoint.run.kind if checkpoint is not None else "diffusion"
+    k = model_refine(checkpoint, refine)
+    return f"{kind}+refine{k}" if k else kind
 
 
 def zero_shot_notes(checkpoint: Checkpoint, target: str, source: str) -> list[str]:

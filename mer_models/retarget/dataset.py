@@ -58,7 +58,7 @@ from mer_models.solver.optimize import optimize_motion
 from mer_models.zoo.checkpoint import Checkpoint
 
 from .artifacts import ARTIFACT_KEYS
-from .clip import MODEL_FPS, retarget_features_many, sequence_metrics
+from .clip import MODEL_FPS, model_label, retarget_features_many, sequence_metrics
 from .long_horizon import prepare_reference
 from .workers import run_tasks
 
@@ -494,12 +494,7 @@ def retarget_dataset(
     for j in jobs:
         if j.done():
             rows.append(json.loads(j.output("metrics").read_text()))
-    label = method
-    if method == "diffusion":  # the model's kind and its refinement (a warm start refines by default)
-        kind = checkpoint.run.kind if checkpoint is not None else "diffusion"
-        k = model_kw.get("refine")
-        k = (checkpoint.run.warm.refine if kind == "warm" and checkpoint is not None else 0) if k is None else k
-        label = f"{kind}+refine{k}" if k else kind
+    label = model_label(checkpoint, model_kw.get("refine")) if method == "diffusion" else method
     summary = {
         "source": source, "targets": sorted(set(targets)), "method": label, "workers": used, "jobs": len(jobs),
         "done_before": len(jobs) - len(todo), "done_now": len(todo), "frames": frames_done, "seconds": round(seconds, 3),

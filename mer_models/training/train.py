@@ -251,6 +251,61 @@ def update_average(averaged: Mapping[str, torch.Tensor], model: nn.Module, decay
             a.copy_(v)
 
 
+@dataclass
+class _Start:
+    """Where a run starts: its step, robots, moving average and the RNG states a resume restores."""
+
+    step: int
+    robots: dict[str, dict[str, str]]
+    averaged: dict[str, torch.Tensor] | None
+    rng: dict[str, torch.Tensor]
+
+
+def start_state(out: Path, run: RunConfig, model: nn.Module, opt: torch.optim.Optimizer, *, resume: bool, init: str | Path | None,
+                known_robots: Mapping[str, Mapping[str, str]] | None, rank: int = 0, world: int = 1) -> _Start:
+    """Resume ``out`` (weights, optimiser, step, robots, RNG), or start fresh from ``init``'s weights
+    (or the model as built) with ``known_robots``; a checkpoint already in ``out`` without ``resume``
+    is refused. Both training loops (:func:`train`, :func:`mer_models.training.warm.train_warm`) start here."""
+    robots: dict[str, dict[str, str]] = {"targets": {}, "references": {}}
+    for side, names in (known_robots or {}).items():
+        robots.setdefault(side, {}).update(dict(names))
+    step, averaged, rng = 0, None, {}
+    if resume:
+        if not (out / CONFIG).is_file():
+            raise CheckpointError(f"nothing to resume in {out}", path=out, fix="drop --resume to start a new run")
+        meta, state, rng, averaged = _resume_state(out, run, model, opt, rank, world)
+        step = int(state["step"])
+        robots = {k: dict(v) for k, v in meta["robots"].items()}
+    elif (out / CONFIG).exists():
+        raise CheckpointError(f"{out} already holds a checkpoint", path=out, fix="pass --resume to continue it, or choose another --out")
+    elif init is not None:
+        load_weights(model, Path(init))
+    if run.train.ema > 0 and averaged is None:
+        averaged = {k: v.detach().clone() for k, v in model.state_dict().items()}
+    return _Start(step, robots, averaged, rng)
+
+
+def note_robots(robots: dict[str, dict[str, str]], batch: Mapping) -> None:
+    """Record the target and reference robots of ``batch`` (with their skeleton fingerprints) in ``robots``."""
+    for side, key in (("targets", "tgt_names"), ("references", "ref_names")):
+        for name in batch[key]:
+            if name not in robots[side]:
+                robots[side][name] = _fingerprint(name)
+
+
+def append_log(out: Path, record: Mapping[str, Any]) -> None:
+    """Append one JSON line to ``out``'s training log (a planted link is refused, not followed)."""
+    out.mkdir(parents=True, exist_ok=True)
+    logf = out / LOG_FILE
+    try:
+        fd = os.open(logf, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW, 0o666)
+    except OSError as e:
+        raise MerError(f"cannot append to the training log: {e.strerror}", path=logf,
+                       fix="remove what is at that path (mer writes the log itself, never through a link)") from None  # fmt: skip
+    with os.fdopen(fd, "a") as fh:
+        fh.write(json.dumps(dict(record)) + "\n")
+
+
 def train(
     run: RunConfig,
     dataset: Dataset,
@@ -298,24 +353,10 @@ def train(
     model = RetargetModel(run.model).to(dev)
     opt = torch.optim.AdamW(model.parameters(), lr=run.train.lr, weight_decay=run.train.weight_decay)
     noise_gen = torch.Generator(device=dev).manual_seed(run.train.seed * 1000 + rank)
-    step = 0
-    averaged: dict[str, torch.Tensor] | None = None
-    robots: dict[str, dict[str, str]] = {"targets": {}, "references": {}}
-    for side, names in (known_robots or {}).items():
-        robots.setdefault(side, {}).update(dict(names))
+    start = start_state(out, run, model, opt, resume=resume, init=init, known_robots=known_robots, rank=rank, world=world)
+    step, robots, averaged, rng = start.step, start.robots, start.averaged, start.rng
     if resume:
-        if not (out / CONFIG).is_file():
-            raise CheckpointError(f"nothing to resume in {out}", path=out, fix="drop --resume to start a new run")
-        meta, state, rng, averaged = _resume_state(out, run, model, opt, rank, world)
-        step = int(state["step"])
-        robots = {k: dict(v) for k, v in meta["robots"].items()}
         noise_gen.set_state(rng[f"noise.{rank}"])
-    elif (out / CONFIG).exists():
-        raise CheckpointError(f"{out} already holds a checkpoint", path=out, fix="pass --resume to continue it, or choose another --out")
-    elif init is not None:
-        load_weights(model, Path(init))
-    if run.train.ema > 0 and averaged is None:
-        averaged = {k: v.detach().clone() for k, v in model.state_dict().items()}
     net: nn.Module = _Step(model)
     if world > 1:
         net = nn.parallel.DistributedDataParallel(net)
@@ -348,10 +389,7 @@ def train(
     model.train()
     while step < steps:
         batch = next(loader)
-        for side, key in (("targets", "tgt_names"), ("references", "ref_names")):
-            for name in batch[key]:
-                if name not in robots[side]:
-                    robots[side][name] = _fingerprint(name)
+        note_robots(robots, batch)
         for g in opt.param_groups:
             g["lr"] = _lr(run, step)
         cond = model.conditions(batch)
@@ -391,14 +429,7 @@ def train(
                     robots[side].update(other[side])
         if rank == 0 and (step % run.train.log_every == 0 or step == steps):
             last["sec_per_step"] = (time.time() - t0) / max(1, step - start_step)
-            out.mkdir(parents=True, exist_ok=True)
-            try:  # a planted link is refused, not followed
-                fd = os.open(logf, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW, 0o666)
-            except OSError as e:
-                raise MerError(f"cannot append to the training log: {e.strerror}", path=logf,
-                               fix="remove what is at that path (mer writes the log itself, never through a link)") from None
-            with os.fdopen(fd, "a") as fh:
-                fh.write(json.dumps(last) + "\n")
+            append_log(out, last)
             log.info("step %d loss %.4f edm %.4f f_kin %.5f", step, last["loss"], last["edm"], last["f_total"])
             if progress is not None:
                 progress(last)

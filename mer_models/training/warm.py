@@ -13,9 +13,7 @@ state and RNG) and the training log are the diffusion trainer's (:mod:`.train`).
 
 from __future__ import annotations
 
-import json
 import logging
-import os
 import time
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -23,21 +21,20 @@ from typing import Any, Callable, Mapping
 import torch
 from torch.utils.data import DataLoader, Dataset
 
-from mer_data.base.errors import CheckpointError, MerError
+from mer_data.base.errors import MerError
 from mer_data.motion.samples import collate
 from mer_models.batch import batch_features, graph_from_batch
 from mer_models.config import RunConfig
-from mer_models.hub.checkpoint_files import CONFIG, load_weights, save_checkpoint
-from mer_models.warm.model import WarmModel
+from mer_models.hub.checkpoint_files import save_checkpoint
+from mer_models.warm.model import WarmModel, frames_of
 
 from .order import OrderSampler
-from .train import LOG_FILE, TrainResult, _fingerprint, _lr, _resume_state, ema_decay, update_average
+from .train import LOG_FILE, TrainResult, _lr, append_log, ema_decay, note_robots, start_state, update_average
 
 log = logging.getLogger(__name__)
 
 __all__ = ["train_warm", "fill_teacher"]
 
-_PER_FRAME = ("reference", "ref_scaled_pos", "ref_goal_rot", "teacher", "target")
 
 
 def fill_teacher(batch: dict, run: RunConfig, fps: float = 30.0) -> None:
@@ -65,7 +62,7 @@ def _crop(batch: dict, frames: int, gen: torch.Generator) -> dict:
     if frames <= 0 or frames >= T:
         return batch
     s = int(torch.randint(0, T - frames + 1, (1,), generator=gen))
-    return {k: (v[:, s : s + frames] if k in _PER_FRAME and torch.is_tensor(v) else v) for k, v in batch.items()}
+    return frames_of(batch, s, s + frames)
 
 
 def train_warm(
@@ -93,24 +90,10 @@ def train_warm(
     model = WarmModel(run.warm).to(dev)
     opt = torch.optim.AdamW(model.parameters(), lr=run.train.lr, weight_decay=run.train.weight_decay)
     crop_gen = torch.Generator().manual_seed(run.train.seed)
-    step = 0
-    averaged: dict[str, torch.Tensor] | None = None
-    robots: dict[str, dict[str, str]] = {"targets": {}, "references": {}}
-    for side, names in (known_robots or {}).items():
-        robots.setdefault(side, {}).update(dict(names))
+    start = start_state(out, run, model, opt, resume=resume, init=init, known_robots=known_robots)
+    step, robots, averaged, rng = start.step, start.robots, start.averaged, start.rng
     if resume:
-        if not (out / CONFIG).is_file():
-            raise CheckpointError(f"nothing to resume in {out}", path=out, fix="drop --resume to start a new run")
-        meta, state, rng, averaged = _resume_state(out, run, model, opt, 0, 1)
-        step = int(state["step"])
-        robots = {k: dict(v) for k, v in meta["robots"].items()}
         crop_gen.set_state(rng["noise.0"])
-    elif (out / CONFIG).exists():
-        raise CheckpointError(f"{out} already holds a checkpoint", path=out, fix="pass --resume to continue it, or choose another --out")
-    elif init is not None:
-        load_weights(model, Path(init))
-    if run.train.ema > 0 and averaged is None:
-        averaged = {k: v.detach().clone() for k, v in model.state_dict().items()}
     sampler = OrderSampler(len(dataset), run.train.batch_size, run.train.seed, step, 0, 1, None, 1)
     start_step = step
     loader = iter(DataLoader(dataset, batch_sampler=sampler, collate_fn=collate, num_workers=num_workers))
@@ -132,10 +115,7 @@ def train_warm(
     model.train()
     while step < steps:
         batch = next(loader)
-        for side, key in (("targets", "tgt_names"), ("references", "ref_names")):
-            for name in batch[key]:
-                if name not in robots[side]:
-                    robots[side][name] = _fingerprint(name)
+        note_robots(robots, batch)
         for g in opt.param_groups:
             g["lr"] = _lr(run, step)
         batch = _crop(batch, run.warm.crop, crop_gen)  # first: a sample without a teacher is solved on the frames trained on
@@ -157,14 +137,7 @@ def train_warm(
         last.update({k: v.mean().item() for k, v in terms.items() if k != "total"})
         if step % run.train.log_every == 0 or step == steps:
             last["sec_per_step"] = (time.time() - t0) / max(1, step - start_step)
-            out.mkdir(parents=True, exist_ok=True)
-            try:  # a planted link is refused, not followed
-                fd = os.open(logf, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW, 0o666)
-            except OSError as e:
-                raise MerError(f"cannot append to the training log: {e.strerror}", path=logf,
-                               fix="remove what is at that path (mer writes the log itself, never through a link)") from None  # fmt: skip
-            with os.fdopen(fd, "a") as fh:
-                fh.write(json.dumps(last) + "\n")
+            append_log(out, last)
             log.info("step %d loss %.4f q %.4f fk %.5f energy %.5f", step, last["loss"], last["q"], last["fk"], last["energy"])
             if progress is not None:
                 progress(last)

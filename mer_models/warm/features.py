@@ -55,13 +55,15 @@ class Anchor:
     origin: torch.Tensor
 
 
-def anchor(batch: Mapping, eta: torch.Tensor, goals: torch.Tensor, has: torch.Tensor, device) -> Anchor:
-    """The :class:`Anchor` of a collated batch, from the joint map ``eta`` (B, Jt, Jr) and the
-    per-node goals ``goals`` (B, T, Jt, 3) with their mask ``has`` (B, Jt)."""
+def anchor(batch: Mapping, goals: torch.Tensor, has: torch.Tensor, device,
+           goal_rot: tuple[torch.Tensor, torch.Tensor] | None = None) -> Anchor:  # fmt: skip
+    """The :class:`Anchor` of a collated batch, from the per-node goals ``goals`` (B, T, Jt, 3) with
+    their mask ``has`` (B, Jt) and the per-node orientation goals ``goal_rot`` ((B, T, Jt, 3, 3) and
+    their mask (B, Jt), :func:`~mer_models.solver.energy.orientation_pairs`; None: the batch has none)."""
     rot_ref = axis_angle_to_matrix(batch["reference"][:, :, 0, 0:3].to(device, torch.float32))
     rot_b = rot_ref
-    if "ref_goal_rot" in batch:
-        grot, has_rot = orientation_pairs(eta, batch["ref_goal_rot"].to(device, torch.float32), batch["ref_rot_mask"].to(device))
+    if goal_rot is not None:
+        grot, has_rot = goal_rot
         rot_b = torch.where(has_rot[:, None, :1, None], grot[:, :, 0], rot_ref)
     base_scaled = batch["ref_scaled_pos"][:, :, 0].to(device, torch.float32)
     pos_b = torch.where(has[:, None, :1], goals[:, :, 0], base_scaled)
@@ -80,7 +82,10 @@ def node_inputs(batch: Mapping, g: BatchGraph, ref: BatchGraph, fps: float, vel_
     goal = batch["ref_scaled_pos"].to(device, torch.float32)
     goals, has = keypoint_goals(eta, goal)
     has = has & g.mask
-    a = anchor(batch, eta, goals, has, device)
+    pairs = None  # the orientation goal of each node (its reference partner's), once for the anchor and the inputs
+    if "ref_goal_rot" in batch:
+        pairs = orientation_pairs(eta, batch["ref_goal_rot"].to(device, torch.float32), batch["ref_rot_mask"].to(device))
+    a = anchor(batch, goals, has, device, pairs)
     B, T, Jt = goals.shape[:3]
     m = has[:, None, :, None].to(goals.dtype)
     head = _in(a.heading, goals - a.origin[:, :, None]) * m
@@ -97,8 +102,8 @@ def node_inputs(batch: Mapping, g: BatchGraph, ref: BatchGraph, fps: float, vel_
     vel = _in(a.heading, finite_difference(goals, fps, dim=-3)) / vel_scale * m
     rot6 = goals.new_zeros(B, T, Jt, 6)
     has_rot = torch.zeros(B, Jt, dtype=torch.bool, device=device)
-    if "ref_goal_rot" in batch:
-        grot, has_rot = orientation_pairs(eta, batch["ref_goal_rot"].to(device, torch.float32), batch["ref_rot_mask"].to(device))
+    if pairs is not None:
+        grot, has_rot = pairs
         has_rot = has_rot & g.mask
         local_rot = a.heading.transpose(-1, -2)[:, :, None] @ grot
         rot6 = local_rot[..., :, :2].transpose(-1, -2).reshape(B, T, Jt, 6) * has_rot[:, None, :, None]

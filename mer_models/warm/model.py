@@ -31,7 +31,15 @@ from mer_models.solver.limits import limit_clip, limit_logit
 from .features import node_inputs, relations
 from .network import WarmNet
 
-__all__ = ["WarmModel", "key_frames", "interpolate"]
+__all__ = ["WarmModel", "key_frames", "interpolate", "frames_of"]
+
+#: The per-frame entries of a collated batch (B, T, ...); the rest describe the skeletons and the samples.
+PER_FRAME = ("reference", "ref_scaled_pos", "ref_goal_rot", "teacher", "target")
+
+
+def frames_of(batch: Mapping, lo: int, hi: int) -> dict:
+    """The batch restricted to frames ``lo:hi`` (its per-frame entries sliced, the rest shared)."""
+    return {k: (v[:, lo:hi] if k in PER_FRAME and torch.is_tensor(v) else v) for k, v in batch.items()}
 
 
 def key_frames(T: int, stride: int, offset: int = 0) -> torch.Tensor:
@@ -98,13 +106,12 @@ class WarmModel(PretrainedMixin, nn.Module):
         margin = self.cfg.stride * (self.cfg.layers * (self.cfg.kernel // 2) + 1) + 1  # + 1: the goal velocities
         if T <= chunk + 2 * margin:
             return self.forward_batch(batch, fps)
-        per_frame = {"reference", "ref_scaled_pos", "ref_goal_rot", "teacher", "target"}
         outs: dict[str, list[torch.Tensor]] = {"q": [], "base_pos": [], "base_rot": []}
         chunk = max(self.cfg.stride, chunk - chunk % self.cfg.stride)  # every chunk starts on a key frame
         margin += (-margin) % self.cfg.stride
         for s in range(0, T, chunk):
             lo, hi = max(0, s - margin), min(T, s + chunk + margin)
-            part = {k: (v[:, lo:hi] if k in per_frame and torch.is_tensor(v) else v) for k, v in batch.items()}
+            part = frames_of(batch, lo, hi)
             out = self.forward_batch(part, fps)
             for k in outs:
                 outs[k].append(out[k][:, s - lo : s - lo + min(chunk, T - s)])
