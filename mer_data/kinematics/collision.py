@@ -11,6 +11,15 @@ and B-in-A. Positive: interpenetrating by that much [m]; negative: apart, by at 
 (pairs far apart are not computed exactly: the gap between their bounding spheres, else between
 their world-axis-aligned boxes, else across a face plane of either that has all of the other's
 vertices outside, else the polyhedral distance of the nearest sample point).
+
+**Separating-axis depth** (``which="sat"``, the solver's): the least overlap of the two shapes'
+projections over the face normals of both, ``-max_f min_p (n_f . p + d_f)`` over B's faces with A's
+vertices and the other way round. It is exact at vertices (a polytope's extreme point along any
+axis is a vertex), it bounds the true penetration depth from above and the sample-point depth
+with it (a point of A as deep as ``delta`` inside B needs A moved at least ``delta`` in any
+direction), so a solver that holds it under a margin holds the metric there too; and its axis is
+the direction that separates the shapes with the least motion (side by side feet: across, not
+along the foot nor up, where the deepest point's nearest face often points).
 """
 
 from __future__ import annotations
@@ -50,7 +59,8 @@ def pair_depths(model: Any, pos: torch.Tensor, rot: torch.Tensor, pairs: Any = N
         margin: pairs whose bounding spheres are more than ``margin`` apart are not computed exactly.
         chunk: (frame, pair) entries computed at once (memory ~ chunk * points * planes).
         which: the sample points whose depth is measured: ``points`` (vertices and edge points,
-            the metrics) or ``vertices`` (about a tenth of them: the solver's faster search).
+            the metrics) or ``vertices`` (about a tenth of them); or ``sat``, the separating-axis
+            depth (module docstring: the solver's).
     """
     pairs = torch.as_tensor(model.pairs if pairs is None else pairs, device=pos.device).reshape(-1, 2)
     lead = pos.shape[:-2]
@@ -63,9 +73,9 @@ def pair_depths(model: Any, pos: torch.Tensor, rot: torch.Tensor, pairs: Any = N
     p2 = pos.reshape(-1, *pos.shape[-2:])
     r2 = rot.reshape(-1, *rot.shape[-3:])
     a, b = pairs[:, 0], pairs[:, 1]
-    ca = torch.einsum("fkij,kj->fki", r2[:, node[a]], center[a]) + p2[:, node[a]]
-    cb = torch.einsum("fkij,kj->fki", r2[:, node[b]], center[b]) + p2[:, node[b]]
-    gap = (ca - cb).norm(dim=-1) - radius[a] - radius[b]  # (B, K): bounding spheres
+    c = torch.einsum("fsij,sj->fsi", r2[:, node], center) + p2[:, node]  # (B, S, 3): once per shape, not per pair
+    dist = torch.cdist(c, c, compute_mode="donot_use_mm_for_euclid_dist")  # (B, S, S): cheaper than gathering (B, K, 3)
+    gap = dist[:, a, b] - (radius[a] + radius[b])  # (B, K): bounding spheres
     out = -gap.clamp_min(0)
     near = gap <= margin
     if where is not None:
@@ -76,12 +86,16 @@ def pair_depths(model: Any, pos: torch.Tensor, rot: torch.Tensor, pairs: Any = N
         with torch.no_grad():
             v = shape_points(model, p2, r2, "vertices")  # (B, S, V, 3)
             lo, hi = v.amin(-2), v.amax(-2)
-            sep = torch.maximum(lo[:, a] - hi[:, b], lo[:, b] - hi[:, a]).amax(-1)  # (B, K) gap between the boxes
-        out = torch.where(near & (sep > 0), -sep, out)
-        near &= ~(sep > margin)
+            f, k = near.nonzero(as_tuple=True)  # only the entries still near
+            sep = torch.maximum(lo[f, a[k]] - hi[f, b[k]], lo[f, b[k]] - hi[f, a[k]]).amax(-1)  # gap between the boxes
+        apart = sep > 0
+        out = out.index_put((f[apart], k[apart]), -sep[apart])
+        far = sep > margin
+        near[f[far], k[far]] = False
     near = near.nonzero()
     if len(near):
-        pts, verts = _t(getattr(model, which), pos), _t(model.vertices, pos)
+        sat = which == "sat"
+        pts, verts = _t(model.vertices if sat else getattr(model, which), pos), _t(model.vertices, pos)
         planes = _t(model.planes, pos)
         vals = []
         for s in range(0, len(near), chunk):
@@ -92,7 +106,7 @@ def pair_depths(model: Any, pos: torch.Tensor, rot: torch.Tensor, pairs: Any = N
             sep_gap = torch.maximum(gap_ab, gap_ba)
             v = -sep_gap
             close = sep_gap <= 0
-            if bool(close.any()):
+            if not sat and bool(close.any()):
                 fc, sac, sbc = f[close], sa[close], sb[close]
                 v = v.clone()
                 v[close] = torch.maximum(_inside(pts, planes, node, p2, r2, fc, sac, sbc), _inside(pts, planes, node, p2, r2, fc, sbc, sac))
@@ -162,12 +176,14 @@ def contact_points(model: Any, pos: torch.Tensor, rot: torch.Tensor, entries: tu
     B, T = pos.shape[:2]
     bi, ti, ki, sa, sb = entries
     node = torch.as_tensor(model.node, device=pos.device)
-    pts, planes = _t(getattr(model, which), pos), _t(model.planes, pos)
+    sat = which == "sat"
+    pts, planes = _t(model.vertices if sat else getattr(model, which), pos), _t(model.planes, pos)
     p2, r2 = pos.reshape(B * T, *pos.shape[2:]), rot.reshape(B * T, *rot.shape[2:])
     f = bi * T + ti
-    da, pa, na = _deepest(pts, planes, node, p2, r2, f, sa, sb)
-    db, pb, nb = _deepest(pts, planes, node, p2, r2, f, sb, sa)
-    a_in = (da >= db)[:, None]
+    fn = _separating if sat else _deepest
+    da, pa, na = fn(pts, planes, node, p2, r2, f, sa, sb)
+    db, pb, nb = fn(pts, planes, node, p2, r2, f, sb, sa)
+    a_in = ((da <= db) if sat else (da >= db))[:, None]  # the separating axis: the lesser overlap
     point = torch.where(a_in, pa, pb)
     normal = torch.where(a_in, na, nb)
     reach = torch.where(a_in[:, 0], node[sa], node[sb])
@@ -177,7 +193,7 @@ def contact_points(model: Any, pos: torch.Tensor, rot: torch.Tensor, entries: tu
     out_n = pos.new_zeros(B, T, K, 3)
     out_a = torch.zeros(B, T, K, dtype=torch.long, device=pos.device)
     out_b = torch.zeros(B, T, K, dtype=torch.long, device=pos.device)
-    out_d[bi, ti, ki] = torch.maximum(da, db)
+    out_d[bi, ti, ki] = torch.minimum(da, db) if sat else torch.maximum(da, db)
     out_p[bi, ti, ki], out_n[bi, ti, ki], out_a[bi, ti, ki], out_b[bi, ti, ki] = point, normal, reach, other
     return out_d, out_p, out_n, out_a, out_b
 
@@ -196,3 +212,20 @@ def _deepest(pts, planes, node, pos, rot, f, sa, sb):
     e = torch.arange(len(f), device=pos.device)
     n_local = pl[e, face[e, p], :3]
     return depth, world[e, p], torch.einsum("eij,ej->ei", rb, n_local)
+
+
+def _separating(verts, planes, node, pos, rot, f, sa, sb):
+    """The overlap of shape ``sa`` with shape ``sb`` along ``sb``'s best separating face normal at
+    frames ``f``: overlap (E,) [m] (negative: that face separates them), ``sa``'s vertex deepest
+    along it (E, 3) and the face's outward normal (E, 3), in the world."""
+    ra, ta = rot[f, node[sa]], pos[f, node[sa]]
+    rb, tb = rot[f, node[sb]], pos[f, node[sb]]
+    world = torch.einsum("eij,epj->epi", ra, verts[sa]) + ta[:, None]
+    local = torch.einsum("eji,epj->epi", rb, world - tb[:, None])
+    pl = planes[sb]
+    signed = torch.einsum("epj,efj->epf", local, pl[..., :3]) + pl[:, None, :, 3]  # (E, P, F)
+    low, p = signed.min(1)  # per face: how far all of sa's vertices are outside it, and the one least
+    gap, face = low.max(-1)
+    e = torch.arange(len(f), device=pos.device)
+    n_local = pl[e, face, :3]
+    return -gap, world[e, p[e, face]], torch.einsum("eij,ej->ei", rb, n_local)

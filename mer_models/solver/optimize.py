@@ -38,6 +38,7 @@ Levenberg-Marquardt damping, acceptance and solve are per frame (per sample for 
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from typing import Any
@@ -189,18 +190,24 @@ def optimize_motion(
                                                  stats=ik_stats, physics=physics, **gkw)  # fmt: skip
             if stats is not None:
                 stats["gn_iterations"] = ik_stats.get("iterations", 0)
-            if repair is not None and repair.repairs and smooth > 0:  # the self term, on the pairs the solve left interpenetrating
+            rounds = repair.cfg.repair_rounds if repair is not None and repair.repairs and smooth > 0 else 0
+            seen = None
+            for rnd in range(rounds):  # the self term, on the pairs the solve (or the last round) left interpenetrating
                 pos, rot = batch_fk(graph, q0, p0, r0)
-                fix = repair.repair(pos, rot)
-                if fix is not None:  # only the samples with a pair interpenetrating, each on its own
-                    rows, terms = fix
-                    sub = {k: None if v is None else v[rows] for k, v in gkw.items()}
-                    with solver_stage("self-contact repair"):
-                        qr, pr, rr = coupled_lm_ik(cfg, graph.select(rows), eta[rows], goal[rows], q0[rows], p0[rows], r0[rows],
-                                                   iters=repair.cfg.self_repair_iters, smooth=smooth * repair.cfg.repair_smooth, tol=tol, physics=terms,
-                                                   hold=terms.held_frames(), **sub)  # fmt: skip
-                    q0, p0, r0 = q0.clone(), p0.clone(), r0.clone()
-                    q0[rows], p0[rows], r0[rows] = qr, pr, rr
+                fix = repair.repair(pos, rot, first=rnd == 0, seen=seen)
+                if fix is None:
+                    break
+                # only the samples with a pair interpenetrating, each on its own; the self term stiffer each round
+                rows, terms = fix
+                seen = terms.found
+                terms = dataclasses.replace(terms, cfg=dataclasses.replace(terms.cfg, w_self=terms.cfg.w_self * terms.cfg.repair_growth**rnd))
+                sub = {k: None if v is None else v[rows] for k, v in gkw.items()}
+                with solver_stage("self-contact repair"):
+                    qr, pr, rr = coupled_lm_ik(cfg, graph.select(rows), eta[rows], goal[rows], q0[rows], p0[rows], r0[rows],
+                                               iters=repair.cfg.self_repair_iters, smooth=smooth * repair.cfg.repair_smooth, tol=tol, physics=terms,
+                                               hold=terms.held_frames(), **sub)  # fmt: skip
+                q0, p0, r0 = q0.clone(), p0.clone(), r0.clone()
+                q0[rows], p0[rows], r0[rows] = qr, pr, rr
     if iters > 0:
         z = limit_logit(q0, lower, upper).clone().requires_grad_(True)
         pos = p0.clone().requires_grad_(True)

@@ -65,6 +65,8 @@ class PhysicsConfig:
     repair_smooth: float = 8.0  # the temporal prior's weight in the repair, relative to the solve's
     repair_touch: float | None = 0.0  # frames where a body other than a foot is lower than this [m] get the repair too (None: not)
     repair_reach: int = 6  # the repair looks for a pair only within this many frames of where it was found (-1: every frame)
+    repair_rounds: int = 3  # repairs in a row, each on the pairs still interpenetrating and those found before (self_repair_iters each)
+    repair_growth: float = 2.0  # the self term's weight grows by this factor each round
     w_speed: float = 1.0
     speed_fraction: float = 0.95  # joint speed held under this share of the URDF velocity limit
     lock_blend: int = 4  # frames over which a stance foot's goals blend into and out of their anchor (-1: no lock)
@@ -94,6 +96,7 @@ class PhysicsInputs:
     pair_mask: Any = None  # (B, K) or (B, T, K) bool: which of ``pairs`` each sample's (frame's) self term looks at (None: all)
     ref_knees: tuple[int, int] = (-1, -1)  # the reference's knee nodes (-1: none)
     free: Any = None  # (B, T) bool: the frames a repair may move (None: all; :meth:`repair`)
+    found: Any = None  # (B, T, K) bool, the whole batch: the (frame, pair) entries repairs found so far (:meth:`repair`)
 
     @classmethod
     def of_reference(cls, model: Any, contacts: torch.Tensor | None, fps: float, cfg: PhysicsConfig, ref: Any) -> "PhysicsInputs":
@@ -119,7 +122,8 @@ class PhysicsInputs:
         """The terms of the main solve: without the self term where it runs as a repair."""
         return dataclasses.replace(self, cfg=dataclasses.replace(self.cfg, w_self=0.0)) if self.repairs else self
 
-    def repair(self, pos: torch.Tensor, rot: torch.Tensor) -> tuple[torch.Tensor, "PhysicsInputs"] | None:
+    def repair(self, pos: torch.Tensor, rot: torch.Tensor, first: bool = True,
+               seen: torch.Tensor | None = None) -> tuple[torch.Tensor, "PhysicsInputs"] | None:  # fmt: skip
         """The repair iterations' samples and terms for a solution with node poses ``pos`` (B, T, J, 3),
         ``rot`` (B, T, J, 3, 3), or None when no sample needs one.
 
@@ -130,6 +134,10 @@ class PhysicsInputs:
         self term on the pairs found (each looked for within ``cfg.repair_reach`` frames of where it
         was found), and every frame farther than ``repair_reach`` from a found one held where it is
         (:meth:`held_frames`). Each sample on its own: its result does not depend on the rest of the batch.
+
+        A later round (``first`` False) is triggered by pairs alone; ``seen`` (B, T, K) bool, the
+        (frame, pair) entries earlier rounds found, stay in its self term (else it would push those
+        pairs back together). The entries found so far are on the terms, as ``found``.
         """
         from mer_data.kinematics.collision import lowest_points, pair_depths
 
@@ -142,21 +150,22 @@ class PhysicsInputs:
             hit = torch.zeros(B, T, K, dtype=torch.bool, device=pos.device)
         frames = hit.any(-1)
         body = torch.as_tensor(self.model.foot, device=pos.device) == 0
-        if self.cfg.repair_touch is not None and bool(body.any()):
+        if first and self.cfg.repair_touch is not None and bool(body.any()):
             frames = frames | (lowest_points(self.model, pos, rot)[0][..., body].amin(-1) < self.cfg.repair_touch)
         rows = frames.any(1).nonzero().flatten()
         if not len(rows):
             return None
-        any_pair = hit[rows].any((0, 1))
+        both = hit if seen is None else hit | seen
+        any_pair = both[rows].any((0, 1))
         contacts = None if self.contacts is None else self.contacts[rows.to(self.contacts.device)]
         pairs = torch.as_tensor(self.model.pairs, device=pos.device).reshape(-1, 2)[any_pair]
-        mask = hit[rows][..., any_pair]  # (N, T, K'): where each pair was found
+        mask = both[rows][..., any_pair]  # (N, T, K'): where each pair was found
         free = frames[rows]  # (N, T)
         if self.cfg.repair_reach >= 0:  # widened by repair_reach frames
             mask, free = _widen(mask, self.cfg.repair_reach), _widen(free[..., None], self.cfg.repair_reach)[..., 0]
         else:
             mask, free = mask.any(1), torch.ones_like(free)
-        return rows, dataclasses.replace(self, contacts=contacts, pairs=pairs, pair_mask=mask, free=free)
+        return rows, dataclasses.replace(self, contacts=contacts, pairs=pairs, pair_mask=mask, free=free, found=both)
 
     def held_frames(self) -> torch.Tensor | None:
         """(B, T) bool: the frames a repair leaves where they are (farther than ``cfg.repair_reach``
@@ -241,7 +250,7 @@ def foot_extent(model: Any) -> tuple[float, float]:
 
 
 SELF_REACH_M = 0.05  # pairs further apart than this at a solve's first iterate are not looked at in it
-SELF_POINTS = "vertices"  # the solver's self-penetration search looks at hull vertices only (the metrics also at edge points)
+SELF_POINTS = "sat"  # the solver's self-penetration depth: the separating-axis one (mer_data.kinematics.collision)
 FLOOR_VERTICES = 4  # per shape, the lowest this many vertices are held above the floor
 
 

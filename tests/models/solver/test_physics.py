@@ -114,6 +114,60 @@ def test_the_floor_term_keeps_a_sunken_reference_on_the_floor():
     assert b["g_mpbpe"] < 0.06  # it stood up instead: about the 5 cm the goals asked for
 
 
+def test_the_repair_takes_feet_the_goals_put_through_each_other_apart():
+    """TALOS standing, both hips rolled in over frames 6-23 of 30 (its own motion: the goals are
+    reachable exactly): the plain optimiser follows the feet through each other, the physical
+    terms leave no pair deeper than 1 cm (the metric's sample points: the separating-axis depth
+    the repair holds bounds it from above)."""
+    from mer_data.kinematics.collision import shape_points
+    from mer_models.retarget.clip import retarget_features, sequence_metrics, source_features
+
+    r = load_robot("talos")
+    s, geom = r.skeleton, collision_model(r)
+    F, J = 30, s.num_nodes
+    q = np.zeros((F, J))
+    hip = [s.node_names.index(n) for n in s.node_names if "leg_left_2" in n or "leg_right_2" in n]
+    ramp = np.clip(np.minimum(np.arange(F) - 5, 24 - np.arange(F)) / 4, 0, 1)
+    q[:, hip[0]], q[:, hip[1]] = -0.3 * ramp, 0.3 * ramp
+    low = float(shape_points(geom, torch.from_numpy(s.rest_positions), torch.eye(3, dtype=torch.float64).expand(J, 3, 3))[..., 2].min())
+    base = np.zeros((F, 3))
+    base[:, 2] = -low
+    feats = source_features(base, np.tile([1.0, 0, 0, 0], (F, 1)), q, s, 30.0)
+    plain = retarget_features(feats, s, s, method="optimize", fps=30.0)
+    phys = retarget_features(feats, s, s, method="optimize", fps=30.0, physics=PhysicsConfig())
+    a = sequence_metrics(feats, s, plain.motion, prepared=plain.prepared, geometry=geom)
+    b = sequence_metrics(feats, s, phys.motion, prepared=phys.prepared, geometry=geom)
+    assert a["selfpen_1cm_frames"] > 0.3 and a["selfpen_depth_max"] > 0.03, a["selfpen_worst"]
+    assert b["selfpen_1cm_frames"] == 0 and b["selfpen_depth_max"] < 0.01, b["selfpen_worst"]
+
+
+def test_a_later_repair_round_keeps_the_pairs_earlier_ones_found():
+    """:meth:`PhysicsInputs.repair` with ``seen``: a pair an earlier round found stays in the self
+    term (where it was found), though it is apart now, so the round does not push it back in."""
+    from mer_models.batch import batch_fk
+
+    r = load_robot("talos")
+    s, m = r.skeleton, collision_model(r)
+    T, J = 30, s.num_nodes
+    g = graph_from_batch(collate([TrainingSample(np.zeros((3, J, 9), np.float32), s, s, joint_map(s, s))]), "tgt", "cpu")
+    q = g.nominal[:, None].expand(1, T, J).clone().double()
+    hip = [s.node_names.index(n) for n in s.node_names if "leg_left_2" in n or "leg_right_2" in n]
+    q[0, 10:12, hip[0]], q[0, 10:12, hip[1]] = -0.35, 0.35
+    eye = torch.eye(3, dtype=torch.float64).expand(1, T, 3, 3)
+    pos, rot = batch_fk(g, q, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(1, T, 3), eye)
+    inputs = PhysicsInputs(m, None, 30.0, PhysicsConfig(repair_reach=2, repair_touch=None))
+    rows, first = inputs.repair(pos, rot)
+    seen = torch.zeros_like(first.found)
+    k = len(m.pairs) - 1  # a pair nowhere near (not hit in any frame)
+    assert not bool(first.found[..., k].any())
+    seen[0, 25, k] = True
+    rows, later = inputs.repair(pos, rot, first=False, seen=seen)
+    assert bool(later.found[0, 25, k]) and torch.equal(later.found[..., :k], first.found[..., :k])
+    assert later.pairs.shape[0] == first.pairs.shape[0] + 1 and later.pairs[-1].tolist() == m.pairs[k].tolist()
+    assert bool(later.pair_mask[0, 25, -1]) and not bool(later.pair_mask[0, :23, -1].any())
+    assert (~later.held_frames()[0]).nonzero().flatten().tolist() == list(range(8, 14))  # freed only near today's hit
+
+
 def test_locked_goals_hold_a_stance_foot():
     rng = np.random.default_rng(0)
     goal = torch.from_numpy(rng.normal(size=(1, 20, 5, 3)))
