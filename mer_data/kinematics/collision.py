@@ -73,21 +73,26 @@ def pair_depths(model: Any, pos: torch.Tensor, rot: torch.Tensor, pairs: Any = N
     p2 = pos.reshape(-1, *pos.shape[-2:])
     r2 = rot.reshape(-1, *rot.shape[-3:])
     a, b = pairs[:, 0], pairs[:, 1]
-    c = torch.einsum("fsij,sj->fsi", r2[:, node], center) + p2[:, node]  # (B, S, 3): once per shape, not per pair
+    keep = None if where is None else where.reshape(-1, K).to(device=pos.device)
+    fr = None if keep is None else keep.any(-1).nonzero().flatten()  # only the frames asked for
+    pf, rf = (p2, r2) if fr is None else (p2[fr], r2[fr])
+    c = torch.einsum("fsij,sj->fsi", rf[:, node], center) + pf[:, node]  # (B, S, 3): once per shape, not per pair
     dist = torch.cdist(c, c, compute_mode="donot_use_mm_for_euclid_dist")  # (B, S, S): cheaper than gathering (B, K, 3)
     gap = dist[:, a, b] - (radius[a] + radius[b])  # (B, K): bounding spheres
+    if fr is not None:
+        gap = gap.new_full((p2.shape[0], K), float("inf")).index_copy(0, fr, gap)
     out = -gap.clamp_min(0)
     near = gap <= margin
-    if where is not None:
-        keep = where.reshape(-1, K).to(device=near.device)
+    if keep is not None:
         out = out.masked_fill(~keep, float("-inf"))
         near &= keep
     if bool(near.any()):  # then world-axis-aligned boxes of the vertices: tighter for long bodies
         with torch.no_grad():
-            v = shape_points(model, p2, r2, "vertices")  # (B, S, V, 3)
+            f, k = near.nonzero(as_tuple=True)  # only the entries still near, and their frames
+            fu, slot = torch.unique(f, return_inverse=True)
+            v = shape_points(model, p2[fu], r2[fu], "vertices")  # (B', S, V, 3)
             lo, hi = v.amin(-2), v.amax(-2)
-            f, k = near.nonzero(as_tuple=True)  # only the entries still near
-            sep = torch.maximum(lo[f, a[k]] - hi[f, b[k]], lo[f, b[k]] - hi[f, a[k]]).amax(-1)  # gap between the boxes
+            sep = torch.maximum(lo[slot, a[k]] - hi[slot, b[k]], lo[slot, b[k]] - hi[slot, a[k]]).amax(-1)  # gap between the boxes
         apart = sep > 0
         out = out.index_put((f[apart], k[apart]), -sep[apart])
         far = sep > margin
@@ -102,17 +107,55 @@ def pair_depths(model: Any, pos: torch.Tensor, rot: torch.Tensor, pairs: Any = N
             f, k = near[s : s + chunk, 0], near[s : s + chunk, 1]
             sa, sb = a[k], b[k]
             # a face of either shape with all of the other's vertices outside separates them: cheap, and most near pairs are
-            gap_ab, gap_ba = _inside(verts, planes, node, p2, r2, f, sa, sb, gap=True), _inside(verts, planes, node, p2, r2, f, sb, sa, gap=True)
+            gap_ab = _by_size(_inside, verts, planes, node, p2, r2, f, sa, sb, gap=True)
+            gap_ba = _by_size(_inside, verts, planes, node, p2, r2, f, sb, sa, gap=True)
             sep_gap = torch.maximum(gap_ab, gap_ba)
             v = -sep_gap
             close = sep_gap <= 0
             if not sat and bool(close.any()):
                 fc, sac, sbc = f[close], sa[close], sb[close]
                 v = v.clone()
-                v[close] = torch.maximum(_inside(pts, planes, node, p2, r2, fc, sac, sbc), _inside(pts, planes, node, p2, r2, fc, sbc, sac))
+                v[close] = torch.maximum(_by_size(_inside, pts, planes, node, p2, r2, fc, sac, sbc),
+                                         _by_size(_inside, pts, planes, node, p2, r2, fc, sbc, sac))
             vals.append(v)
         out = out.index_put((near[:, 0], near[:, 1]), torch.cat(vals))
     return out.reshape(*lead, K)
+
+
+_SIZES = (8, 16, 32, 64, 128, 256, 512)  # size classes of shapes' point and plane counts (_by_size)
+
+
+def _counts(x: torch.Tensor) -> torch.Tensor:
+    """(S,) how many of each shape's rows of ``x`` (S, N, k) come before its padding (copies of its
+    first row at the end)."""
+    same = (x == x[:, :1]).all(-1)
+    return (x.shape[1] - same.flip(-1).to(torch.int64).cumprod(-1).sum(-1)).clamp_min(1)
+
+
+def _by_size(fn, pts, planes, node, pos, rot, f, sa, sb, **kw):
+    """``fn(pts, planes, node, pos, rot, f, sa, sb, **kw)`` with the entries grouped by how many of
+    ``sa``'s points and ``sb``'s planes they need, each group's arrays cut to its largest: the same
+    result without computing the padding (a box is 8 vertices and 6 planes, padded to a 48-vertex
+    hull's 48 and ~90)."""
+    npt, npl = _counts(pts), _counts(planes)
+    sizes = torch.tensor(_SIZES, device=npt.device)
+    key = torch.bucketize(npt[sa], sizes) * (len(_SIZES) + 1) + torch.bucketize(npl[sb], sizes)
+    keys = torch.unique(key)
+    out = None
+    for k in keys:
+        idx = None if len(keys) == 1 else (key == k).nonzero().flatten()
+        fi, ai, bi = (f, sa, sb) if idx is None else (f[idx], sa[idx], sb[idx])
+        res = fn(pts[:, : int(npt[ai].max())], planes[:, : int(npl[bi].max())], node, pos, rot, fi, ai, bi, **kw)
+        if idx is None:
+            return res
+        res = res if isinstance(res, tuple) else (res,)
+        if out is None:
+            out = [r.new_empty((len(sa), *r.shape[1:])) for r in res]
+        for o, r in zip(out, res):
+            o[idx] = r
+    if out is None:  # no entries
+        return fn(pts, planes, node, pos, rot, f, sa, sb, **kw)
+    return tuple(out) if len(out) > 1 else out[0]
 
 
 def _inside(pts, planes, node, pos, rot, f, sa, sb, gap: bool = False) -> torch.Tensor:
@@ -181,8 +224,8 @@ def contact_points(model: Any, pos: torch.Tensor, rot: torch.Tensor, entries: tu
     p2, r2 = pos.reshape(B * T, *pos.shape[2:]), rot.reshape(B * T, *rot.shape[2:])
     f = bi * T + ti
     fn = _separating if sat else _deepest
-    da, pa, na = fn(pts, planes, node, p2, r2, f, sa, sb)
-    db, pb, nb = fn(pts, planes, node, p2, r2, f, sb, sa)
+    da, pa, na = _by_size(fn, pts, planes, node, p2, r2, f, sa, sb)
+    db, pb, nb = _by_size(fn, pts, planes, node, p2, r2, f, sb, sa)
     a_in = ((da <= db) if sat else (da >= db))[:, None]  # the separating axis: the lesser overlap
     point = torch.where(a_in, pa, pb)
     normal = torch.where(a_in, na, nb)

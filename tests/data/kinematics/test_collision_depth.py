@@ -172,3 +172,35 @@ def test_the_separating_axis_of_side_by_side_feet_points_across():
     depth, point, normal, _, _ = contact_points(m, pos[:, None], rot[:, None], entries, 1, "sat")
     assert float(depth[0, 0, 0]) == pytest.approx(0.03)
     assert abs(float(normal[0, 0, 0, 1])) == pytest.approx(1.0)
+
+
+def test_shapes_of_different_sizes_are_computed_without_their_padding_and_the_same():
+    """A box (8 vertices), a 24-vertex prism and a 48-vertex hull in one model: every pair's depth,
+    computed by size class with each class's arrays cut to its largest, equals the computation over
+    the whole padded arrays (``_inside`` directly), in every mode."""
+    from mer_data.kinematics.collision import _inside, _separating
+
+    rng = np.random.default_rng(3)
+    box = np.array([[x, y, z] for x in (-0.1, 0.1) for y in (-0.04, 0.04) for z in (0.0, 0.05)])
+    ang = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    prism = np.concatenate([np.stack([0.05 * np.cos(ang), 0.05 * np.sin(ang), np.full(12, z)], 1) for z in (-0.1, 0.1)])
+    hull = simplify_hull(rng.normal(size=(300, 3)) * [0.08, 0.05, 0.06], 48)[0]
+    m = _model(box, prism, hull)
+    m.pairs = np.array([[0, 1], [0, 2], [1, 2]])
+    F = 64
+    pos = torch.from_numpy(rng.normal(size=(F, 3, 3)) * 0.06)
+    rot = axis_angle_to_matrix(torch.from_numpy(rng.normal(size=(F, 3, 3))))
+    node = torch.arange(3)
+    f = torch.arange(F).repeat_interleave(3)
+    sa, sb = torch.tensor([0, 0, 1]).repeat(F), torch.tensor([1, 2, 2]).repeat(F)
+    verts, pts, planes = (torch.from_numpy(getattr(m, k)) for k in ("vertices", "points", "planes"))
+    gap = torch.maximum(_inside(verts, planes, node, pos, rot, f, sa, sb, gap=True), _inside(verts, planes, node, pos, rot, f, sb, sa, gap=True))
+    deep = torch.maximum(_inside(pts, planes, node, pos, rot, f, sa, sb), _inside(pts, planes, node, pos, rot, f, sb, sa))
+    sat = torch.minimum(_separating(verts, planes, node, pos, rot, f, sa, sb)[0], _separating(verts, planes, node, pos, rot, f, sb, sa)[0])
+    assert torch.allclose(sat, -gap)
+    close = (gap <= 0).reshape(F, 3)
+    assert close.any() and (~close).any()  # both kinds of entries
+    got = pair_depths(m, pos, rot, margin=1.0)  # margin: every pair computed exactly
+    want = torch.where(close, deep.reshape(F, 3), -gap.reshape(F, 3))
+    assert torch.allclose(got, want, atol=1e-12)
+    assert torch.allclose(pair_depths(m, pos, rot, margin=1.0, which="sat"), -gap.reshape(F, 3), atol=1e-12)
