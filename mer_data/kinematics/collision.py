@@ -76,9 +76,14 @@ def pair_depths(model: Any, pos: torch.Tensor, rot: torch.Tensor, pairs: Any = N
     keep = None if where is None else where.reshape(-1, K).to(device=pos.device)
     fr = None if keep is None else keep.any(-1).nonzero().flatten()  # only the frames asked for
     pf, rf = (p2, r2) if fr is None else (p2[fr], r2[fr])
-    c = torch.einsum("fsij,sj->fsi", rf[:, node], center) + pf[:, node]  # (B, S, 3): once per shape, not per pair
-    dist = torch.cdist(c, c, compute_mode="donot_use_mm_for_euclid_dist")  # (B, S, S): cheaper than gathering (B, K, 3)
-    gap = dist[:, a, b] - (radius[a] + radius[b])  # (B, K): bounding spheres
+    us, inv = torch.unique(torch.cat([a, b]), return_inverse=True)  # only the shapes in the pairs
+    ua, ub = inv[:K], inv[K:]
+    c = torch.einsum("fsij,sj->fsi", rf[:, node[us]], center[us]) + pf[:, node[us]]  # (B, U, 3): once per shape, not per pair
+    if 4 * K < len(us) ** 2:  # a few pairs (a repair's): gathered
+        gap = (c[:, ua] - c[:, ub]).norm(dim=-1)
+    else:  # many: all distances at once is cheaper than gathering (B, K, 3)
+        gap = torch.cdist(c, c, compute_mode="donot_use_mm_for_euclid_dist")[:, ua, ub]
+    gap = gap - (radius[a] + radius[b])  # (B, K): bounding spheres
     if fr is not None:
         gap = gap.new_full((p2.shape[0], K), float("inf")).index_copy(0, fr, gap)
     out = -gap.clamp_min(0)
@@ -90,9 +95,11 @@ def pair_depths(model: Any, pos: torch.Tensor, rot: torch.Tensor, pairs: Any = N
         with torch.no_grad():
             f, k = near.nonzero(as_tuple=True)  # only the entries still near, and their frames
             fu, slot = torch.unique(f, return_inverse=True)
-            v = shape_points(model, p2[fu], r2[fu], "vertices")  # (B', S, V, 3)
+            nu = node[us]
+            v = torch.einsum("fsij,spj->fspi", r2[fu][:, nu], _t(model.vertices, pos)[us]) + p2[fu][:, nu, None]  # (B', U, V, 3)
             lo, hi = v.amin(-2), v.amax(-2)
-            sep = torch.maximum(lo[slot, a[k]] - hi[slot, b[k]], lo[slot, b[k]] - hi[slot, a[k]]).amax(-1)  # gap between the boxes
+            ka, kb = ua[k], ub[k]
+            sep = torch.maximum(lo[slot, ka] - hi[slot, kb], lo[slot, kb] - hi[slot, ka]).amax(-1)  # gap between the boxes
         apart = sep > 0
         out = out.index_put((f[apart], k[apart]), -sep[apart])
         far = sep > margin
