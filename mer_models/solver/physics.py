@@ -11,8 +11,9 @@ the target's collision polytopes (:mod:`mer_data.robots.collision`), floor at z 
   that stance phase, ``w_anchor``);
 * **swing** (the source's foot up): the foot's lowest point at least ``swing_clearance`` up
   (one-sided, ``w_swing``);
-* **self-penetration** ``w_self``: the deepest point of each interpenetrating pair of checked
-  bodies (:func:`mer_data.kinematics.collision.pair_contacts`) pushed out to ``self_margin``;
+* **self-penetration** ``w_self``: each interpenetrating pair of checked bodies pushed apart to
+  ``self_margin`` along its separating axis, the one of least overlap (:data:`SELF_POINTS`,
+  :func:`mer_data.kinematics.collision.pair_contacts`): its depth bounds the metric's from above;
 * **joint speed** ``w_speed``: ``|q_{t+1} - q_t|`` at most ``speed_fraction`` of the URDF velocity
   limit per frame (one-sided), in the whole-window solver only (:func:`~.ik.coupled_lm_ik`), whose
   block-tridiagonal system couples the frames exactly (:meth:`Physics.speed_terms`).
@@ -24,7 +25,8 @@ the target's foot width apart (:meth:`PhysicsInputs.separate_feet`). With ``self
 the self term runs only after the solve, on the samples and pairs it left interpenetrating, and
 on frames within ``repair_reach`` of where they do (and of where a body other than a foot is on
 the floor), the other frames held, with the temporal prior ``repair_smooth`` times stiffer
-(:meth:`PhysicsInputs.repair`). The anchor term couples frames; it takes the phase means from the
+(:meth:`PhysicsInputs.repair`); up to ``repair_rounds`` times, each round on what the last left
+and the pairs found before, the self term ``repair_growth`` times stiffer each round. The anchor term couples frames; it takes the phase means from the
 previous iterate, Jacobi-style, in both solvers. Weights are relative to ``EnergyConfig.w_kp``;
 the defaults (floor, joint speed, the stance lock, feet apart and the self-penetration repair on;
 stance height, flat feet, anchors and swing off) and what each measured are in docs/decisions.md
