@@ -191,10 +191,10 @@ def optimize_motion(
             if stats is not None:
                 stats["gn_iterations"] = ik_stats.get("iterations", 0)
             rounds = repair.cfg.repair_rounds if repair is not None and repair.repairs and smooth > 0 else 0
-            seen = None
+            seen = moved = None
             for rnd in range(rounds):  # the self term, on the pairs the solve (or the last round) left interpenetrating
                 pos, rot = batch_fk(graph, q0, p0, r0)
-                fix = repair.repair(pos, rot, first=rnd == 0, seen=seen)
+                fix = repair.repair(pos, rot, first=rnd == 0, seen=seen, moved=moved)
                 if fix is None:
                     break
                 # only the samples with a pair interpenetrating, each on its own; the self term stiffer each round
@@ -208,6 +208,8 @@ def optimize_motion(
                                                hold=terms.held_frames(), **sub)  # fmt: skip
                 q0, p0, r0 = q0.clone(), p0.clone(), r0.clone()
                 q0[rows], p0[rows], r0[rows] = qr, pr, rr
+                moved = torch.zeros(B, T, dtype=torch.bool, device=q0.device)
+                moved[rows] = torch.as_tensor(terms.free, device=q0.device)
     if iters > 0:
         z = limit_logit(q0, lower, upper).clone().requires_grad_(True)
         pos = p0.clone().requires_grad_(True)

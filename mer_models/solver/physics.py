@@ -124,8 +124,8 @@ class PhysicsInputs:
         """The terms of the main solve: without the self term where it runs as a repair."""
         return dataclasses.replace(self, cfg=dataclasses.replace(self.cfg, w_self=0.0)) if self.repairs else self
 
-    def repair(self, pos: torch.Tensor, rot: torch.Tensor, first: bool = True,
-               seen: torch.Tensor | None = None) -> tuple[torch.Tensor, "PhysicsInputs"] | None:  # fmt: skip
+    def repair(self, pos: torch.Tensor, rot: torch.Tensor, first: bool = True, seen: torch.Tensor | None = None,
+               moved: torch.Tensor | None = None) -> tuple[torch.Tensor, "PhysicsInputs"] | None:  # fmt: skip
         """The repair iterations' samples and terms for a solution with node poses ``pos`` (B, T, J, 3),
         ``rot`` (B, T, J, 3, 3), or None when no sample needs one.
 
@@ -139,7 +139,9 @@ class PhysicsInputs:
 
         A later round (``first`` False) is triggered by pairs alone; ``seen`` (B, T, K) bool, the
         (frame, pair) entries earlier rounds found, stay in its self term (else it would push those
-        pairs back together). The entries found so far are on the terms, as ``found``.
+        pairs back together). The entries found so far are on the terms, as ``found``. ``moved``
+        (B, T) bool: the only frames that can have a new pair (the last round's free ones; the
+        rest are as that round found them, without any), the only ones searched.
         """
         from mer_data.kinematics.collision import lowest_points, pair_depths
 
@@ -147,7 +149,8 @@ class PhysicsInputs:
             return None
         B, T, K = pos.shape[0], pos.shape[1], len(self.model.pairs)
         if self.cfg.w_self > 0 and K:
-            hit = pair_depths(self.model, pos, rot, which=SELF_POINTS) > self.cfg.repair_depth  # (B, T, K)
+            where = None if moved is None else moved.to(pos.device)[..., None].expand(B, T, K)
+            hit = pair_depths(self.model, pos, rot, which=SELF_POINTS, where=where) > self.cfg.repair_depth  # (B, T, K)
         else:
             hit = torch.zeros(B, T, K, dtype=torch.bool, device=pos.device)
         frames = hit.any(-1)

@@ -166,6 +166,12 @@ def test_a_later_repair_round_keeps_the_pairs_earlier_ones_found():
     assert later.pairs.shape[0] == first.pairs.shape[0] + 1 and later.pairs[-1].tolist() == m.pairs[k].tolist()
     assert bool(later.pair_mask[0, 25, -1]) and not bool(later.pair_mask[0, :23, -1].any())
     assert (~later.held_frames()[0]).nonzero().flatten().tolist() == list(range(8, 14))  # freed only near today's hit
+    # only the frames the last round moved are searched: the hit frames among them, the same result; none, no repair
+    moved = torch.zeros(1, T, dtype=torch.bool)
+    moved[0, 8:14] = True
+    _, same = inputs.repair(pos, rot, first=False, moved=moved)
+    assert torch.equal(same.found, first.found) and torch.equal(same.pair_mask, first.pair_mask)
+    assert inputs.repair(pos, rot, first=False, moved=torch.zeros_like(moved)) is None
 
 
 def test_locked_goals_hold_a_stance_foot():
