@@ -165,17 +165,24 @@ def _by_size(fn, pts, planes, node, pos, rot, f, sa, sb, **kw):
     return tuple(out) if len(out) > 1 else out[0]
 
 
-def _inside(pts, planes, node, pos, rot, f, sa, sb, gap: bool = False) -> torch.Tensor:
-    """Depth of shape ``sa``'s points inside shape ``sb`` at frames ``f`` (entries E): (E,).
-
-    With ``gap``: instead, how far the best of ``sb``'s face planes has all of those points outside
-    (> 0: that face separates the shapes by at least this much)."""
+def _signed(pts, planes, node, pos, rot, f, sa, sb):
+    """Signed distances (E, P, F) [m] of shape ``sa``'s points to shape ``sb``'s face planes at
+    frames ``f`` (entries E; > 0: outside that face), the points in the world (E, P, 3) and ``sb``'s
+    node rotations (E, 3, 3)."""
     ra, ta = rot[f, node[sa]], pos[f, node[sa]]
     rb, tb = rot[f, node[sb]], pos[f, node[sb]]
     world = torch.einsum("eij,epj->epi", ra, pts[sa]) + ta[:, None]
     local = torch.einsum("eji,epj->epi", rb, world - tb[:, None])  # into sb's node frame
     pl = planes[sb]  # (E, F, 4)
-    signed = torch.einsum("epj,efj->epf", local, pl[..., :3]) + pl[:, None, :, 3]
+    return torch.einsum("epj,efj->epf", local, pl[..., :3]) + pl[:, None, :, 3], world, rb
+
+
+def _inside(pts, planes, node, pos, rot, f, sa, sb, gap: bool = False) -> torch.Tensor:
+    """Depth of shape ``sa``'s points inside shape ``sb`` at frames ``f`` (entries E): (E,).
+
+    With ``gap``: instead, how far the best of ``sb``'s face planes has all of those points outside
+    (> 0: that face separates the shapes by at least this much)."""
+    signed = _signed(pts, planes, node, pos, rot, f, sa, sb)[0]
     if gap:
         return signed.amin(1).amax(-1)
     return (-signed.amax(-1)).amax(-1)
@@ -251,16 +258,11 @@ def contact_points(model: Any, pos: torch.Tensor, rot: torch.Tensor, entries: tu
 def _deepest(pts, planes, node, pos, rot, f, sa, sb):
     """Shape ``sa``'s deepest point inside ``sb`` at frames ``f``: depth (E,), the point (E, 3) and the
     outward normal (E, 3) of ``sb``'s nearest face, in the world."""
-    ra, ta = rot[f, node[sa]], pos[f, node[sa]]
-    rb, tb = rot[f, node[sb]], pos[f, node[sb]]
-    world = torch.einsum("eij,epj->epi", ra, pts[sa]) + ta[:, None]
-    local = torch.einsum("eji,epj->epi", rb, world - tb[:, None])
-    pl = planes[sb]
-    signed = torch.einsum("epj,efj->epf", local, pl[..., :3]) + pl[:, None, :, 3]  # (E, P, F)
+    signed, world, rb = _signed(pts, planes, node, pos, rot, f, sa, sb)
     near, face = signed.max(-1)  # per point: its nearest face (the largest signed distance)
     depth, p = (-near).max(-1)
     e = torch.arange(len(f), device=pos.device)
-    n_local = pl[e, face[e, p], :3]
+    n_local = planes[sb, face[e, p], :3]
     return depth, world[e, p], torch.einsum("eij,ej->ei", rb, n_local)
 
 
@@ -268,14 +270,9 @@ def _separating(verts, planes, node, pos, rot, f, sa, sb):
     """The overlap of shape ``sa`` with shape ``sb`` along ``sb``'s best separating face normal at
     frames ``f``: overlap (E,) [m] (negative: that face separates them), ``sa``'s vertex deepest
     along it (E, 3) and the face's outward normal (E, 3), in the world."""
-    ra, ta = rot[f, node[sa]], pos[f, node[sa]]
-    rb, tb = rot[f, node[sb]], pos[f, node[sb]]
-    world = torch.einsum("eij,epj->epi", ra, verts[sa]) + ta[:, None]
-    local = torch.einsum("eji,epj->epi", rb, world - tb[:, None])
-    pl = planes[sb]
-    signed = torch.einsum("epj,efj->epf", local, pl[..., :3]) + pl[:, None, :, 3]  # (E, P, F)
+    signed, world, rb = _signed(verts, planes, node, pos, rot, f, sa, sb)
     low, p = signed.min(1)  # per face: how far all of sa's vertices are outside it, and the one least
     gap, face = low.max(-1)
     e = torch.arange(len(f), device=pos.device)
-    n_local = pl[e, face, :3]
+    n_local = planes[sb, face, :3]
     return -gap, world[e, p[e, face]], torch.einsum("eij,ej->ei", rb, n_local)

@@ -39,19 +39,19 @@ def _quat(r: np.ndarray) -> np.ndarray:
     return out
 
 
-def test_penetration_depth_agrees_with_mujoco_on_shallow_contacts():
-    """60 random pairs of 48-vertex hulls pushed 0-30 mm into each other along a random direction
-    (found by bisection on MuJoCo's own contact): our depth against MuJoCo's (GJK/EPA on the hulls)."""
-    rng = np.random.default_rng(7)
-    ours, theirs = [], []
-    for _ in range(60):
+def _pushed_pairs(seed: int, n: int, deepest: float):
+    """``n`` random pairs of 48-vertex hulls, the second pushed 0-``deepest`` [m] into the first along
+    a random direction (found by bisection on MuJoCo's own contact): ``(model, pos (1, 2, 3), rot
+    (1, 2, 3, 3), MuJoCo's depth (GJK/EPA on the hulls))`` each."""
+    rng = np.random.default_rng(seed)
+    for _ in range(n):
         ha = simplify_hull(rng.normal(size=(300, 3)) * [0.1, 0.04, 0.03], 48)[0]
         hb = simplify_hull(rng.normal(size=(300, 3)) * [0.05, 0.06, 0.04], 48)[0]
         m = _model(ha, hb)
         rot = axis_angle_to_matrix(torch.from_numpy(rng.normal(size=(2, 3)))).numpy()
         d = rng.normal(size=3)
         d /= np.linalg.norm(d)
-        va, vb = (" ".join(map(str, v[: int(n)].ravel())) for v, n in ((m.vertices[0], len(polytope(ha)[0])), (m.vertices[1], len(polytope(hb)[0]))))
+        va, vb = (" ".join(map(str, v.ravel())) for v in (polytope(ha)[0], polytope(hb)[0]))
         xml = (f'<mujoco><asset><mesh name="a" vertex="{va}"/><mesh name="b" vertex="{vb}"/></asset><worldbody>'
                '<body><freejoint/><geom type="mesh" mesh="a"/></body><body><freejoint/><geom type="mesh" mesh="b"/></body>'
                "</worldbody></mujoco>")  # fmt: skip
@@ -67,10 +67,17 @@ def test_penetration_depth_agrees_with_mujoco_on_shallow_contacts():
         for _ in range(40):
             mid = (lo + hi) / 2
             lo, hi = (mid, hi) if mj_depth(mid) > 0 else (lo, mid)
-        x = hi - rng.uniform(0.0, 0.03)
-        theirs.append(mj_depth(x))
-        pos = torch.from_numpy(np.stack([np.zeros(3), d * x]))[None]
-        ours.append(float(pair_depths(m, pos, torch.from_numpy(rot)[None])[0, 0]))
+        x = hi - rng.uniform(0.0, deepest)
+        yield m, torch.from_numpy(np.stack([np.zeros(3), d * x]))[None], torch.from_numpy(rot)[None], mj_depth(x)
+
+
+def test_penetration_depth_agrees_with_mujoco_on_shallow_contacts():
+    """60 random pairs of 48-vertex hulls pushed 0-30 mm into each other along a random direction
+    (found by bisection on MuJoCo's own contact): our depth against MuJoCo's (GJK/EPA on the hulls)."""
+    ours, theirs = [], []
+    for m, pos, rot, mj in _pushed_pairs(7, 60, 0.03):
+        theirs.append(mj)
+        ours.append(float(pair_depths(m, pos, rot)[0, 0]))
     ours_a, theirs_a = np.array(ours), np.array(theirs)
     err = np.abs(ours_a - theirs_a)
     assert theirs_a.max() > 0.015 and theirs_a.min() >= 0  # the range the metrics' 1 cm threshold lives in
@@ -121,34 +128,9 @@ def test_the_separating_axis_depth_bounds_the_true_depth_from_above():
     point depth, on 40 random hull pairs pushed 0-40 mm into each other: never below either (so a
     solver holding it under a margin holds the metric there too), and equal to MuJoCo's where the
     deepest contact is face against vertex (the median)."""
-    rng = np.random.default_rng(11)
     sat, pts, mj = [], [], []
-    for _ in range(40):
-        ha = simplify_hull(rng.normal(size=(300, 3)) * [0.1, 0.04, 0.03], 48)[0]
-        hb = simplify_hull(rng.normal(size=(300, 3)) * [0.05, 0.06, 0.04], 48)[0]
-        m = _model(ha, hb)
-        rot = axis_angle_to_matrix(torch.from_numpy(rng.normal(size=(2, 3)))).numpy()
-        d = rng.normal(size=3)
-        d /= np.linalg.norm(d)
-        va, vb = (" ".join(map(str, v.ravel())) for v in (polytope(ha)[0], polytope(hb)[0]))
-        xml = (f'<mujoco><asset><mesh name="a" vertex="{va}"/><mesh name="b" vertex="{vb}"/></asset><worldbody>'
-               '<body><freejoint/><geom type="mesh" mesh="a"/></body><body><freejoint/><geom type="mesh" mesh="b"/></body>'
-               "</worldbody></mujoco>")  # fmt: skip
-        mm = mujoco.MjModel.from_xml_string(xml)
-        dd = mujoco.MjData(mm)
-
-        def mj_depth(x: float) -> float:
-            dd.qpos[:] = np.concatenate([[0, 0, 0], _quat(rot[0]), d * x, _quat(rot[1])])
-            mujoco.mj_forward(mm, dd)
-            return -min((dd.contact[i].dist for i in range(dd.ncon)), default=1.0)
-
-        lo, hi = 0.0, 1.0
-        for _ in range(40):
-            mid = (lo + hi) / 2
-            lo, hi = (mid, hi) if mj_depth(mid) > 0 else (lo, mid)
-        x = hi - rng.uniform(0.0, 0.04)
-        mj.append(mj_depth(x))
-        pos, r = torch.from_numpy(np.stack([np.zeros(3), d * x]))[None], torch.from_numpy(rot)[None]
+    for m, pos, r, depth in _pushed_pairs(11, 40, 0.04):
+        mj.append(depth)
         sat.append(float(pair_depths(m, pos, r, which="sat")[0, 0]))
         pts.append(float(pair_depths(m, pos, r)[0, 0]))
     sat_a, pts_a, mj_a = np.array(sat), np.array(pts), np.array(mj)
