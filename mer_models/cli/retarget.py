@@ -212,9 +212,9 @@ def format_metrics(metrics: dict | None, target: str) -> str:
     """One table row of the paper's metrics and the artifact figures (docs/model.md), as dataset runs print them."""
     if not metrics:
         return ""
-    from mer_models.retarget.dataset import metric_cells, metric_header
+    from mer_models.retarget.columns import metric_cells, metric_header, metric_legend
 
-    return f"{'target':10s} {metric_header()}\n{target:10s} {metric_cells(metrics)}"
+    return f"{'target':10s} {metric_header()}\n{target:10s} {metric_cells(metrics)}\n{metric_legend()}"
 
 
 def _solver_bar(quiet: bool):

@@ -59,12 +59,13 @@ from mer_models.zoo.checkpoint import Checkpoint
 
 from .artifacts import ARTIFACT_KEYS
 from .clip import MODEL_FPS, model_label, retarget_features_many, sequence_metrics
+from .columns import metric_cells, metric_header, metric_legend
 from .long_horizon import prepare_reference
 from .workers import run_tasks
 
 log = logging.getLogger(__name__)
 
-__all__ = ["FORMATS", "Job", "find_clips", "find_bvh_clips", "plan_jobs", "retarget_dataset", "format_summary", "METRIC_COLUMNS", "metric_header", "metric_cells"]
+__all__ = ["FORMATS", "Job", "find_clips", "find_bvh_clips", "plan_jobs", "retarget_dataset", "format_summary"]
 
 FORMATS = ("csv", "npz")
 SUMMARY_KEYS = ("g_mpbpe", "mpboe", "mpbve", "jerk_frame", "limit_violation", *ARTIFACT_KEYS, "selfpen_worst", "speed_worst")
@@ -511,26 +512,6 @@ def retarget_dataset(
 
 
 #: (key, header, format) of a retarget's metrics in the text tables (dataset summaries, one file's row).
-METRIC_COLUMNS = (("g_mpbpe", "g-mpbpe[m]", ".4f"), ("mpboe", "mpboe[rad]", ".3f"), ("mpbve", "mpbve[m/s]", ".3f"),
-                  ("jerk_frame", "jerk[r/f3]", ".4f"), ("limit_violation", "limits", ".3f"), ("floor_frames", "floor<-1cm", ".3f"),
-                  ("skate_median", "skate[m/s]", ".3f"), ("selfpen_1cm_frames", "selfpen>1cm", ".3f"),
-                  ("speed_frames", ">vel.lim", ".3f"))  # fmt: skip
-
-
-def metric_header() -> str:
-    """The header cells of :data:`METRIC_COLUMNS`."""
-    return " ".join(f"{h:>11s}" for _, h, _ in METRIC_COLUMNS)
-
-
-def metric_cells(row: dict) -> str:
-    """One row's cells of :data:`METRIC_COLUMNS` (``-`` where a metric is missing or undefined)."""
-    cells = []
-    for k, _, fmt in METRIC_COLUMNS:
-        v = row.get(k)
-        cells.append(f"{v:>11{fmt}}" if isinstance(v, (int, float)) and np.isfinite(v) else f"{'-':>11s}")
-    return " ".join(cells)
-
-
 def format_summary(summary: dict) -> str:
     """The rows as a text table (one line per clip and target) and the totals."""
     lines = [f"{'target':10s} {'clip':28s} {'frames':>7s} {metric_header()}"]
@@ -541,4 +522,6 @@ def format_summary(summary: dict) -> str:
     lines.append(f"{summary['jobs']} pairs in this shard: {summary['done_before']} skipped (done before), {summary['done_now']} now "
                  f"({summary['frames']} frames in {summary['seconds']} s" + (f", {fps} frames/s" if fps else "")
                  + (f", {procs} processes)" if procs > 1 else ")"))  # fmt: skip
+    if summary["rows"]:
+        lines.append(metric_legend())
     return "\n".join(lines)
