@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ["Column", "METRIC_COLUMNS", "metric_header", "metric_cells", "metric_legend"]
+__all__ = ["Column", "METRIC_COLUMNS", "metric_header", "metric_cells", "metric_legend", "format_summary"]
 
 
 @dataclass(frozen=True)
@@ -58,3 +58,18 @@ def metric_legend(columns: tuple[Column, ...] = METRIC_COLUMNS) -> str:
     """The legend printed under the row: each header and what it measures (docs/model.md §Evaluation metrics)."""
     w = max(len(c.header) for c in columns)
     return "\n".join(f"  {c.header:<{w}s}  {c.legend}" for c in columns)
+
+
+def format_summary(summary: dict) -> str:
+    """A dataset run's summary as a text table (one line per clip and target), the totals and the legend."""
+    lines = [f"{'target':10s} {'clip':28s} {'frames':>7s} {metric_header()}"]
+    for r in sorted(summary["rows"], key=lambda r: (r["target"], r["clip"])):
+        lines.append(f"{r['target']:10s} {r['clip'][:28]:28s} {r['frames']:7d} {metric_cells(r)}")
+    fps = summary.get("frames_per_second")
+    procs = summary.get("workers", 1)
+    lines.append(f"{summary['jobs']} pairs in this shard: {summary['done_before']} skipped (done before), {summary['done_now']} now "
+                 f"({summary['frames']} frames in {summary['seconds']} s" + (f", {fps} frames/s" if fps else "")
+                 + (f", {procs} processes)" if procs > 1 else ")"))  # fmt: skip
+    if summary["rows"]:
+        lines.append(metric_legend())
+    return "\n".join(lines)
