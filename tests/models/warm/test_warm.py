@@ -107,9 +107,8 @@ def test_a_long_motion_in_chunks_is_the_one_pass():
 
 def test_training_fits_the_teacher(tmp_path):
     """A few steps on a fixed set lower the regression on the teacher's solution and the energy."""
-    from mer_models.training.train import train
-
     from mer_data.motion.samples import collate
+    from mer_models.training.train import train
     from mer_models.training.warm import fill_teacher
 
     data = SyntheticDataset("g1", ("h1", "g1"), size=6, seed=3)
