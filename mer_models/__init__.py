@@ -15,7 +15,7 @@ metrics, ``mer evaluate``); :mod:`.training` (``mer train``, the teacher, ``mer 
 
 from typing import Any
 
-__version__ = "0.1.0"
+from mer_models._version import __version__
 
 __all__ = ["RetargetModel", "__version__"]
 

@@ -289,8 +289,9 @@ def card_step(folder: Path, metrics: dict[str, Any] | None) -> Path:
                  "(`evaluation (mer evaluate)`): the model alone, the model + "
                  f"{EVAL['refine']} optimiser iterations, and the optimiser on the same windows. {_verdict(metrics)}"
                  if metrics else "It has not been evaluated on LAFAN1 yet: its metrics hold the training losses only.")
-    summary = (f"mer's default model, bundled with the package: `mer retarget` without `--model` and `mer demo` use it, "
-               "offline. Trained only on synthetic motion generated in code (no third-party motion data), with every "
+    summary = ("mer's bundled model: `mer demo` and `mer retarget --method diffusion` without `--model` use it, "
+               "offline (`mer retarget`'s default path is the optimiser, not a model). Trained only on synthetic motion "
+               "generated in code (no third-party motion data), with every "
                f"built-in robot ({', '.join(ROBOTS)}) as source (reference) and as target; {architecture_text(meta['run'])}, "
                f"trained for {step} steps{' (' + meta['data']['history'] + ')' if meta.get('data', {}).get('history') else ''}; the teacher is "
                f"the optimiser (`mer shards solve`). {evaluated}")

@@ -133,7 +133,7 @@ def _folder_of(name: str) -> tuple[Path, bool]:
     register = f"register it with `mer robots register {name} --urdf ROBOT.urdf` (or --mjcf ROBOT.xml)"
     raise UnknownRobotError(
         f"unknown robot {typed!r}; " + (f"{hint} (known robots: {', '.join(known)})" if hint else f"known robots: {', '.join(known)}"),
-        fix=f"use {close_matches(typed, known)[0]!r}, or {register}" if hint else register,
+        fix=f"use {near[0]!r}, or {register}" if (near := close_matches(typed, known)) else register,
     )
 
 

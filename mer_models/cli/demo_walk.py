@@ -11,6 +11,7 @@ A robot the model never saw is retargeted zero-shot (the ``--allow-unseen`` path
 from __future__ import annotations
 
 import logging
+import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,6 +21,7 @@ from mer_data.robots.register import RegistrationReport, register_robot
 from mer_data.robots.registry import get_skeleton
 from mer_models.export.writers import write_csv, write_mcap
 from mer_models.retarget.clip import MODEL_FPS, retarget_features, sequence_metrics, source_features
+from mer_models.retarget.columns import METRIC_COLUMNS, metric_legend
 from mer_models.zoo.checkpoint import Checkpoint
 
 log = logging.getLogger(__name__)
@@ -29,8 +31,8 @@ __all__ = ["register_example_robot", "RobotResult", "retarget_to_all", "format_r
 #: Frame rate of the demo's GIF [Hz]: every other frame of the 30 Hz motion (half the rendering time).
 DEMO_VIDEO_FPS = 15.0
 
-COLUMNS = (("g_mpbpe", "E_g-mpbpe [m]"), ("mpboe", "E_mpboe [rad]"), ("mpbve", "E_mpbve [m/s]"),
-           ("jerk", "E_smooth [rad/s^3]"), ("limit_violation", "limits"))  # fmt: skip
+# the paper's metrics, named and drawn as every retarget's metrics row names them (mer_models.retarget.columns)
+COLUMNS = tuple(c for c in METRIC_COLUMNS if c.key in ("g_mpbpe", "mpboe", "mpbve", "jerk_frame", "limit_violation"))
 
 
 def register_example_robot(folder: str | Path, name: str | None = None) -> RegistrationReport:
@@ -100,9 +102,10 @@ def retarget_to_all(
 
 def format_results(results: Sequence[RobotResult]) -> str:
     """A table: robot, whether the model saw it, the metrics, the seconds it took."""
-    head = f"{'robot':18s} {'model saw it':13s} " + " ".join(f"{t:>18s}" for _, t in COLUMNS) + f" {'seconds':>8s}"
+    head = f"{'robot':18s} {'model saw it':13s} " + " ".join(f"{c.header:>{c.width}s}" for c in COLUMNS) + f" {'seconds':>8s}"
     lines = [head]
     for r in results:
-        cells = " ".join(f"{r.metrics.get(k, float('nan')):18.4g}" for k, _ in COLUMNS)
+        cells = " ".join(f"{v:>{c.width}{c.fmt}}" if math.isfinite(v := r.metrics.get(c.key, math.nan)) else f"{'-':>{c.width}s}"
+                         for c in COLUMNS)  # fmt: skip
         lines.append(f"{r.robot:18s} {'yes' if r.seen else 'no: zero-shot':13s} {cells} {r.seconds:8.1f}")
-    return "\n".join(lines)
+    return "\n".join([*lines, metric_legend(COLUMNS)])

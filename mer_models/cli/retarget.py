@@ -14,6 +14,36 @@ def check_refine(args: argparse.Namespace) -> None:
         raise MerError(f"--refine must be >= 0, got {args.refine}", fix="give --refine K with K >= 0 (0: the model alone)")
 
 
+def model_options(args: argparse.Namespace) -> list[str]:
+    """The model options given (each only means something to a model), as typed: ``["--model mer-base", "--bf16"]``."""
+    given = (("--model", args.model), ("--refine", args.refine), ("--steps", args.steps), ("--guidance", args.guidance))
+    return [f"{flag} {value}" for flag, value in given if value is not None] + (["--bf16"] if args.bf16 else [])
+
+
+def choose_method(args: argparse.Namespace, human: bool) -> tuple[str, str | None]:
+    """The method and why (docs/model.md, The default path): ``--method`` as given, else the model when a
+    model option is given, else the optimiser. A model option the chosen path would ignore is refused, never
+    dropped: a human (BVH) source has only the optimiser (no model has seen a human source), and
+    ``--method optimize`` runs no model."""
+    from mer_data.base.errors import MerError
+
+    given = model_options(args)
+    if human and (given or args.method == "diffusion"):
+        what = " ".join(given) or "--method diffusion"
+        raise MerError(f"{what}: a model cannot retarget a human (BVH) source: mer's models were trained on robot motion "
+                       "only and have never seen a human skeleton, so the model option would be ignored",
+                       fix="drop it: a BVH source is retargeted by the optimiser (the default path); to use a model, "
+                       "retarget a robot's motion (e.g. the optimiser's output CSV) with --model")  # fmt: skip
+    if args.method == "optimize" and given:
+        raise MerError(f"{' '.join(given)}: --method optimize runs no model, so the model option would be ignored",
+                       fix="drop it, or use --method diffusion (a model option without --method selects the model)")
+    if args.method is not None:
+        return args.method, None
+    if given:
+        return "diffusion", f"a model option was given ({' '.join(given)})"
+    return "optimize", "the default, the most accurate path; --method diffusion --refine 5 for the model"
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "retarget",
@@ -62,11 +92,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--video-range", metavar="START:END", help="the part of the motion the video shows [s] (default: the "
                    "first 10 s; 30: = from 30 s to the end)")
     p.add_argument("--video-fps", type=float, help="frame rate of the video [Hz] (default: the motion's 30; lower renders faster)")
-    p.add_argument("--model", help="checkpoint folder, zoo name or ORG/NAME for --method diffusion "
-                   "(default: the bundled model mer-base, trained on synthetic motion only)")
+    p.add_argument("--model", help="checkpoint folder, zoo name or ORG/NAME; selects --method diffusion (without it, "
+                   "--method diffusion uses the bundled model mer-base, trained on synthetic motion only)")
     p.add_argument("--method", choices=["diffusion", "optimize"],
                    help="default: optimize (the most accurate path on a CPU); diffusion when a model option (--model, --refine, "
-                   "--steps, --guidance, --bf16) is given")
+                   "--steps, --guidance, --bf16) is given; a BVH source has the optimiser only")
     p.add_argument("--steps", type=int, help="sampler steps (default: the model's, <= 20)")
     p.add_argument("--guidance", type=float, help="test-time energy guidance step (default: the model's)")
     p.add_argument("--seed", type=int, default=0, help="sampling seed")
@@ -125,12 +155,7 @@ def cmd_retarget(args) -> int:
         raise MerError("give an INPUT file and --target, or a dataset: --input DIR --targets ROBOT... --out DIR")
     resolve_source(args, args.input)
     human = args.source.lower() == BVH_SOURCE
-    if args.method is None:  # the optimiser, unless a model option says the model (docs/model.md, The default path)
-        wants_model = not human and (args.refine or args.model is not None or args.bf16 or args.steps is not None
-                                     or args.guidance is not None)  # fmt: skip
-        args.method = "diffusion" if wants_model else "optimize"
-        args.method_why = ("the default, the most accurate path; --method diffusion --refine 5 for the model"
-                           if args.method == "optimize" else "a model option was given")  # fmt: skip
+    args.method, why = choose_method(args, human)
     if not any([args.output, args.npz, args.mcap, args.plot, args.video]):
         raise MerError("nothing to write", fix="give -o OUT.csv and/or --npz/--mcap/--plot/--video")
     if args.npz is not None:
@@ -141,10 +166,6 @@ def cmd_retarget(args) -> int:
     kw = {"steps": args.steps, "guidance": args.guidance, "seed": args.seed, "allow_unseen": args.allow_unseen, "refine": args.refine,
           "bf16": args.bf16}  # fmt: skip
     if args.method == "optimize":
-        if args.refine:
-            raise MerError("--refine refines a model's output", fix="use it with --method diffusion (the optimiser alone needs no refinement)")
-        if args.bf16:
-            raise MerError("--bf16 runs the model's network in bfloat16; the optimiser has no network", fix="drop --bf16, or use --method diffusion")
         kw = {}
     model = args.model
     if model is None and args.method == "diffusion":
@@ -158,7 +179,6 @@ def cmd_retarget(args) -> int:
     if bar is not None:
         bar.close()
     m = res.motion
-    why = getattr(args, "method_why", None)
     print(f"{args.source} -> {args.target} ({res.method}{': ' + why if why else ''}): {m.num_frames} frames at {m.fps:g} Hz",
           file=sys.stderr)  # fmt: skip
     for note in res.notes:
@@ -192,9 +212,9 @@ def format_metrics(metrics: dict | None, target: str) -> str:
     """One table row of the paper's metrics and the artifact figures (docs/model.md), as dataset runs print them."""
     if not metrics:
         return ""
-    from mer_models.retarget.dataset import metric_cells, metric_header
+    from mer_models.retarget.columns import metric_cells, metric_header, metric_legend
 
-    return f"{'target':10s} {metric_header()}\n{target:10s} {metric_cells(metrics)}"
+    return f"{'target':10s} {metric_header()}\n{target:10s} {metric_cells(metrics)}\n{metric_legend()}"
 
 
 def _solver_bar(quiet: bool):
@@ -257,12 +277,8 @@ def _dataset(args) -> int:
     if args.video is not None:
         raise MerError("--video writes one file's video; a dataset run does not make videos",
                        fix="retarget the clip you want to see on its own: mer retarget CLIP.csv --source ... --target ... --video OUT.gif")
-    method = args.method or "optimize"
+    method, _ = choose_method(args, args.source.lower() == "bvh")
     check_refine(args)
-    if args.refine and method != "diffusion":
-        raise MerError("--refine refines a model's output", fix="use it with --method diffusion (the optimiser alone needs no refinement)")
-    if args.bf16 and method != "diffusion":
-        raise MerError("--bf16 runs the model's network in bfloat16; the optimiser has no network", fix="drop --bf16, or add --method diffusion")
     checkpoint, kw = None, {}
     if method == "diffusion":
         from mer_models.zoo import DEFAULT_MODEL

@@ -15,7 +15,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("zoo", help="pretrained models: list, inspect, download, publish")
     zs = p.add_subparsers(dest="zoo_cmd", required=True, metavar="{list,info,download,publish}")
 
-    q = zs.add_parser("list", help="the models mer knows, and where each is (bundled/cached/remote/unpublished)")
+    q = zs.add_parser("list", help="the models mer knows, and where each is (bundled/cached/remote/not on Hub/unpublished)")
     q.add_argument("--json", action="store_true", help="machine-readable output")
     q.set_defaults(func=cmd_list)
 

@@ -34,7 +34,15 @@ from mer_data.robots.shapes import MAX_MESH_BYTES, Shape, mesh_file
 
 log = logging.getLogger(__name__)
 
-__all__ = ["link_shapes", "fitted_hulls", "hull_triangles", "BodyMesh", "RobotMeshes", "robot_meshes", "shape_mesh", "decimate"]
+__all__ = ["link_shapes", "fitted_hulls", "hull_triangles", "BodyMesh", "RobotMeshes", "robot_meshes", "shape_mesh", "decimate",
+           "bone_segments"]
+
+
+def bone_segments(pos: np.ndarray, parents) -> np.ndarray:
+    """(J, 3) node positions → (J-1, 2, 3) parent → child segments: the bones the video and the viewer
+    draw for a skeleton, and between a robot's collision pieces."""
+    child = np.arange(1, len(parents))
+    return np.stack([pos[np.asarray(parents)[child]], pos[child]], axis=1)
 
 
 @dataclass(frozen=True)

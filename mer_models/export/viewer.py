@@ -6,7 +6,9 @@ draws, in a world with z up:
 
 - the robot (:func:`~mer_models.export.geometry.robot_meshes`): per body of its articulation one
   mesh, its visual meshes where they can be read, else its collision shapes, moved each frame to
-  the body's pose (:meth:`~mer_data.robots.articulation.Articulation.body_poses`);
+  the body's pose (:meth:`~mer_data.robots.articulation.Articulation.body_poses`); collision shapes
+  are joined by the skeleton's bones (dark grey, as the video draws them:
+  :func:`~mer_models.export.geometry.bone_segments`), so the robot reads as one body;
 - the scaled reference (when given): its bones and the key points the energy tracks (red),
   ``beside`` the robot (to its left at the first frame) or on it;
 - a floor grid (0.5 m squares) and green marks under feet in contact
@@ -33,7 +35,7 @@ from mer_data.base.errors import MerError
 from mer_data.robots.registry import Robot
 from mer_data.skeleton import Skeleton
 
-from .geometry import RobotMeshes
+from .geometry import RobotMeshes, bone_segments
 from .writers import TargetMotion, check_motion_finite
 
 log = logging.getLogger(__name__)
@@ -48,6 +50,7 @@ MESH_RGB = (107, 153, 219)  # as the video's meshes (mer_models.export.video.MES
 COLLISION_RGB = (219, 153, 82)
 REFERENCE_RGB = (214, 38, 41)
 CONTACT_RGB = (51, 168, 51)
+BONE_RGB = (45, 45, 45)  # the bones joining collision shapes: darker than the floor grid, not the meshes' blue
 _UI_RGB = (96, 96, 96)  # the panel's buttons: grey, so nothing but the robot is blue
 
 
@@ -110,6 +113,7 @@ def serve_motion(
     host: str = "127.0.0.1",
     port: int = 8080,
     play: bool = True,
+    bones: bool | None = None,
 ) -> MotionViewer:
     """Start the viewer of ``motion`` (module docstring) and return at once; the server runs in
     background threads until :meth:`MotionViewer.close`.
@@ -122,6 +126,8 @@ def serve_motion(
         reference_points: (F, K, 3) scaled reference key points [m]; reference_nodes: (F, Jr, 3)
             every node of the scaled reference and ``reference_skeleton`` for its bones (optional).
         host, port: where to listen (port 0: any free port); play: start playing.
+        bones: draw the skeleton's bones between the robot's pieces (default: when they are collision
+            shapes, which do not touch each other; visual meshes join by themselves).
 
     Raises:
         MerError: viser not installed, a skeleton no registered robot has, shapes that do not
@@ -178,6 +184,10 @@ def serve_motion(
         handles.append((bm.body, h))
     feet_h = scene.add_point_cloud("/contacts", np.zeros((4, 3), np.float32), CONTACT_RGB, point_size=0.08, point_shape="circle",
                                    point_shading="flat", visible=False)  # fmt: skip
+    rob_bones_h = None
+    if bones if bones is not None else meshes.kind != "mesh":
+        rob_bones_h = scene.add_line_segments("/robot/bones", bone_segments(node_pos[0], skel.parents).astype(np.float32), BONE_RGB,
+                                              thickness=0.03)  # fmt: skip
     bones_h = goals_h = None
     if reference_nodes is not None and reference_skeleton is not None:
         bones_h = scene.add_line_segments("/reference/bones", np.zeros((reference_skeleton.num_nodes - 1, 2, 3), np.float32),
@@ -211,6 +221,8 @@ def serve_motion(
             for b, h in handles:
                 h.position = body_pos[f, b] + shift
                 h.wxyz = body_quat[f, b]
+            if rob_bones_h is not None:
+                rob_bones_h.points = bone_segments(node_pos[f] + shift, skel.parents).astype(np.float32)
             grid.position = tuple(np.mod(shift, 1.0) * [1, 1, 0]) if follow.value else (0.0, 0.0, 0.0)
             marks = [p + shift for p in rob_feet[f] if np.isfinite(p).all()]
             if ref_feet is not None:
@@ -220,10 +232,7 @@ def serve_motion(
             feet_h.visible = bool(marks)
             if bones_h is not None:
                 nodes = np.asarray(reference_nodes[f], np.float64) + ref_shift
-                child = np.arange(1, reference_skeleton.num_nodes)
-                bones_h.points = np.stack([nodes[np.asarray(reference_skeleton.parents)[child]], nodes[child]], axis=1).astype(
-                    np.float32
-                )
+                bones_h.points = bone_segments(nodes, reference_skeleton.parents).astype(np.float32)
             if goals_h is not None:
                 goals_h.points = (np.asarray(reference_points[f], np.float64) + ref_shift).astype(np.float32)
             label.content = f"**{robot.name}** ({meshes.kind}) &nbsp; frame {f + 1}/{F} &nbsp; t = {f / motion.fps:.2f} s"

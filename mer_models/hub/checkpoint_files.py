@@ -34,7 +34,7 @@ from mer_data.base.atomic import atomic_dir
 from mer_data.base.errors import CheckpointError, ConfigError
 from mer_data.base.finite import require_finite
 from mer_data.base.safe_io import decode_utf8, read_regular_file
-from mer_models import __version__
+from mer_models._version import __version__
 from mer_models.config import RunConfig, from_dict
 
 log = logging.getLogger(__name__)

@@ -144,7 +144,7 @@ class Registry:
         raise UnknownModelError(
             f"unknown model {name!r}; " + (f"{hint} (known models: {known})" if hint else f"known models: {known}"),
             element=name,
-            fix=f"use {close_matches(name, sorted(entries))[0]!r}, or {fix}" if hint else fix,
+            fix=f"use {near[0]!r}, or {fix}" if (near := close_matches(name, sorted(entries))) else fix,
         )
 
     def is_builtin(self, name: str) -> bool:

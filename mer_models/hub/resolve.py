@@ -26,13 +26,19 @@ from . import client as hub
 from .card import FileRecord, ModelCard
 from .integrity import verify_hub_blob, verify_record
 from .names import is_commit, looks_like_repo_id, validate_model_name, validate_revision
-from .registry import ModelEntry, Registry
+from .registry import ModelEntry, Registry, source_cards_dir
 
 log = logging.getLogger(__name__)
 
 __all__ = ["Resolved", "list_models", "model_info", "where", "resolve", "download", "DEFAULT_MODEL", "REQUIRED_FILES"]
 
 DEFAULT_MODEL = "mer-base"  # bundled: trained on synthetic motion only, every built-in robot as source and target
+# Published cards whose repository is on no public Hub yet: published to the loopback Hub of mer's tests only
+# (its commit pinned in the card), their weights committed in the source repository at cards/weights/NAME/; a
+# maintainer's `tools/finetune_warm.py --publish-only --hub-url https://huggingface.co` puts one on the Hub
+# (then remove it here). docs/zoo.md, The catalogue.
+NOT_ON_PUBLIC_HUB = frozenset({"mer-warm-romeo"})
+PUBLIC_HUB = "https://huggingface.co"
 REQUIRED_FILES = ("config.json", "model.safetensors")
 
 
@@ -71,16 +77,41 @@ def model_info(name: str, registry: Registry | None = None) -> ModelEntry:
     return _registry(registry).get(name)
 
 
+def _cached(card: ModelCard) -> bool:
+    return bool(card.repo_id and card.revision and all(hub.cached_file(card.repo_id, f, card.revision) for f in card.files))
+
+
+def _off_public_hub(card: ModelCard) -> bool:
+    """The card's repository is on no public Hub (:data:`NOT_ON_PUBLIC_HUB`) and the client asks the public one."""
+    return card.name in NOT_ON_PUBLIC_HUB and hub.endpoint().rstrip("/") == PUBLIC_HUB
+
+
 def where(entry: ModelEntry, registry: Registry | None = None) -> str:
-    """``bundled``, ``cached``, ``remote`` or ``unpublished`` - from the filesystem only, no network."""
+    """``bundled``, ``cached``, ``remote`` (on the Hub the client asks), ``not on Hub`` (published to no
+    public Hub yet: :data:`NOT_ON_PUBLIC_HUB`) or ``unpublished`` - from the filesystem only, no network."""
     card = entry.card
     if card.status == "unpublished":
         return "unpublished"
     if card.status == "bundled" and _registry(registry).bundled_folder(card.name).is_dir():
         return "bundled"
-    if card.repo_id and card.revision and all(hub.cached_file(card.repo_id, f, card.revision) for f in card.files):
+    if _cached(card):
         return "cached"
+    if _off_public_hub(card):
+        return "not on Hub"
     return "remote" if card.repo_id and card.revision else "unpublished"
+
+
+def _not_on_hub(card: ModelCard) -> ModelNotAvailableError:
+    cards = source_cards_dir()
+    weights = cards.parent / "weights" / card.name if cards is not None else None
+    here = (f"load its committed weights by folder: --model {weights}" if weights is not None and weights.is_dir()
+            else f"in a source checkout of mer (git clone), load its committed weights by folder: --model cards/weights/{card.name}")
+    return ModelNotAvailableError(
+        f"{card.name!r} is on no public Hub yet: its repository {card.repo_id} was published to mer's test Hub only, "
+        f"not to {PUBLIC_HUB} (docs/zoo.md)",
+        element=card.name,
+        fix=f"{here}; or set HF_ENDPOINT to a Hub that holds {card.repo_id}",
+    )
 
 
 def _not_published(card: ModelCard) -> ModelNotAvailableError:
@@ -148,6 +179,8 @@ def _resolve_card(entry: ModelEntry, revision: str | None, registry: Registry) -
         return Resolved(folder, "bundled", "card", card.name, card.repo_id, card.revision, card)
     if card.status == "unpublished" or not card.repo_id or not card.revision:
         raise _not_published(card)
+    if _off_public_hub(card) and not _cached(card):  # said before any request, not as a network error
+        raise _not_on_hub(card)
     rev = validate_revision(revision) if revision is not None else card.revision
     files = card.files_for(rev)
     if files is None:

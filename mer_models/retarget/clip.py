@@ -45,6 +45,7 @@ from mer_models.solver.ik import DEFAULT_SMOOTH
 from mer_models.solver.optimize import DEFAULT_GN_ITERS, DEFAULT_ITERS, optimize_motion
 from mer_models.zoo.checkpoint import Checkpoint, check_robot, resolve_model
 
+from .feasible import feasible_motion
 from .long_horizon import prepare_reference, retarget_sequences, warm_sequences
 
 log = logging.getLogger(__name__)
@@ -122,21 +123,6 @@ def physics_inputs(feats: np.ndarray, ref: Skeleton, geometry, fps: float, cfg, 
         pos = split_features(torch.from_numpy(np.asarray(feats, np.float64)))["pos"].numpy()
         contacts = torch.from_numpy(foot_contacts(pos, ref, fps))[None]
     return PhysicsInputs.of_reference(geometry, contacts, fps, cfg, ref)
-
-
-def feasible_motion(motion: TargetMotion, geometry, physics) -> TargetMotion:
-    """``motion`` made feasible after a solve with ``physics`` (a
-    :class:`~mer_models.solver.physics.PhysicsConfig`) if it asks for it
-    (:func:`mer_models.retarget.feasible.make_feasible`)."""
-    if not physics.feasible:
-        return motion
-    from .feasible import make_feasible
-
-    out, rep = make_feasible(motion, geometry, speed_fraction=physics.speed_fraction)
-    if rep.frames_clamped or rep.frames_lifted:
-        log.info("feasible: %d frames' angles slowed (at most %.3f rad), %d frames lifted (at most %.1f cm)",
-                 rep.frames_clamped, rep.max_angle_change, rep.frames_lifted, 100 * rep.max_lift)  # fmt: skip
-    return out
 
 
 def _optimize_sequence(feats, scaled, rot_goals, ref: Skeleton, target: Skeleton, eta, energy: EnergyConfig, fps, iters, gn_iters, device,

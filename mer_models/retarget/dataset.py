@@ -59,65 +59,17 @@ from mer_models.zoo.checkpoint import Checkpoint
 
 from .artifacts import ARTIFACT_KEYS
 from .clip import MODEL_FPS, model_label, retarget_features_many, sequence_metrics
+from .columns import format_summary
+from .jobs import Job, find_bvh_clips, find_clips, plan_jobs
 from .long_horizon import prepare_reference
 from .workers import run_tasks
 
 log = logging.getLogger(__name__)
 
-__all__ = ["FORMATS", "Job", "find_clips", "find_bvh_clips", "plan_jobs", "retarget_dataset", "format_summary", "METRIC_COLUMNS", "metric_header", "metric_cells"]
+__all__ = ["FORMATS", "Job", "find_clips", "find_bvh_clips", "plan_jobs", "retarget_dataset", "format_summary"]
 
 FORMATS = ("csv", "npz")
 SUMMARY_KEYS = ("g_mpbpe", "mpboe", "mpbve", "jerk_frame", "limit_violation", *ARTIFACT_KEYS, "selfpen_worst", "speed_worst")
-
-
-@dataclass(frozen=True)
-class Job:
-    """One (target, clip) pair and where its outputs go."""
-
-    target: str
-    clip: str
-    source_path: Path
-    out_dir: Path
-
-    def output(self, kind: str) -> Path:
-        return self.out_dir / self.target / (f"{self.clip}.metrics.json" if kind == "metrics" else f"{self.clip}.{kind}")
-
-    def done(self) -> bool:
-        return self.output("metrics").is_file()
-
-
-def find_clips(input_spec: str, source: str) -> dict[str, Path]:
-    """clip name → motion file of ``source``: ``DIR/<source>/*.csv[.gz]`` (LAFAN1 layout), else
-    ``DIR/*.csv[.gz]``; ``hf://OWNER/NAME[@REV]`` is downloaded (only ``<source>/`` files)."""
-    from mer_data.shards.sources import clip_name, discover_clips, resolve_input
-
-    root = resolve_input(input_spec, [source])
-    if (root / source).is_dir():
-        return discover_clips(root, [source])[source]
-    if not any(clip_name(p) is not None for p in root.iterdir()):
-        raise MerError(
-            f"no motions of {source!r} in the input: neither {source}/*.csv nor *.csv",
-            path=root,
-            fix=f"point --input at a folder holding {source}/<clip>.csv (LAFAN1 layout) or <clip>.csv files",
-        )
-    return discover_clips(root.parent, [root.name])[root.name]  # the same regular-file and duplicate checks
-
-
-def find_bvh_clips(input_spec: str) -> dict[str, Path]:
-    """clip name → BVH file of a local folder (:func:`mer_data.motion.sources.bvh_files`)."""
-    from mer_data.motion.sources import bvh_files
-
-    if str(input_spec).startswith("hf://"):
-        raise MerError("BVH input is read from a local folder", fix="download the files and pass --input DIR")
-    return bvh_files(input_spec)
-
-
-def plan_jobs(clips: dict[str, Path], targets: Sequence[str], out_dir: Path, shard_index: int = 0, num_shards: int = 1) -> list[Job]:
-    """This shard's jobs: every ``num_shards``-th of the (target, clip) pairs sorted by target, clip."""
-    if num_shards < 1 or not 0 <= shard_index < num_shards:
-        raise MerError(f"--shard-index {shard_index} is not in 0..{num_shards - 1}", fix="use 0 <= --shard-index < --num-shards")
-    jobs = [Job(t, c, p, out_dir) for t in sorted(set(targets)) for c, p in sorted(clips.items())]
-    return jobs[shard_index::num_shards]
 
 
 @dataclass(eq=False)
@@ -232,11 +184,11 @@ def _solve_batch(items: list[tuple[_Clip, tuple[int, int, int, int]]], target: S
 def _finish(c: _Clip, target: Robot, formats: Sequence[str], method: str, seconds: float,
             npz_fps: float | None = NPZ_FPS, physics=None, geometry=None, npz_for: str | None = None) -> dict:  # fmt: skip
     """Write a finished clip's outputs (metrics file last) and return its summary row (with
-    ``physics``, the whole motion made feasible first: :func:`.clip.feasible_motion`)."""
+    ``physics``, the whole motion made feasible first: :func:`.feasible.feasible_motion`)."""
     skel = target.skeleton
     motion = TargetMotion(skel, MODEL_FPS, c.q[:, : skel.num_nodes], c.base_pos + c.shift, c.base_rot)
     if physics is not None and geometry is not None:
-        from .clip import feasible_motion
+        from .feasible import feasible_motion
 
         motion = feasible_motion(motion, geometry, physics)
     prepared = (c.feats, c.scaled, c.shift, (c.goal_rot, c.rot_mask))
@@ -511,34 +463,3 @@ def retarget_dataset(
 
 
 #: (key, header, format) of a retarget's metrics in the text tables (dataset summaries, one file's row).
-METRIC_COLUMNS = (("g_mpbpe", "g-mpbpe[m]", ".4f"), ("mpboe", "mpboe[rad]", ".3f"), ("mpbve", "mpbve[m/s]", ".3f"),
-                  ("jerk_frame", "jerk[r/f3]", ".4f"), ("limit_violation", "limits", ".3f"), ("floor_frames", "floor<-1cm", ".3f"),
-                  ("skate_median", "skate[m/s]", ".3f"), ("selfpen_1cm_frames", "selfpen>1cm", ".3f"),
-                  ("speed_frames", ">vel.lim", ".3f"))  # fmt: skip
-
-
-def metric_header() -> str:
-    """The header cells of :data:`METRIC_COLUMNS`."""
-    return " ".join(f"{h:>11s}" for _, h, _ in METRIC_COLUMNS)
-
-
-def metric_cells(row: dict) -> str:
-    """One row's cells of :data:`METRIC_COLUMNS` (``-`` where a metric is missing or undefined)."""
-    cells = []
-    for k, _, fmt in METRIC_COLUMNS:
-        v = row.get(k)
-        cells.append(f"{v:>11{fmt}}" if isinstance(v, (int, float)) and np.isfinite(v) else f"{'-':>11s}")
-    return " ".join(cells)
-
-
-def format_summary(summary: dict) -> str:
-    """The rows as a text table (one line per clip and target) and the totals."""
-    lines = [f"{'target':10s} {'clip':28s} {'frames':>7s} {metric_header()}"]
-    for r in sorted(summary["rows"], key=lambda r: (r["target"], r["clip"])):
-        lines.append(f"{r['target']:10s} {r['clip'][:28]:28s} {r['frames']:7d} {metric_cells(r)}")
-    fps = summary.get("frames_per_second")
-    procs = summary.get("workers", 1)
-    lines.append(f"{summary['jobs']} pairs in this shard: {summary['done_before']} skipped (done before), {summary['done_now']} now "
-                 f"({summary['frames']} frames in {summary['seconds']} s" + (f", {fps} frames/s" if fps else "")
-                 + (f", {procs} processes)" if procs > 1 else ")"))  # fmt: skip
-    return "\n".join(lines)

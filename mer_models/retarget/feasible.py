@@ -23,6 +23,7 @@ feasible. What they cost in g-mpbpe is measured in docs/decisions.md §Physical 
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -31,7 +32,9 @@ import torch
 from mer_data.kinematics.collision import shape_points
 from mer_models.export.writers import TargetMotion
 
-__all__ = ["FeasibleReport", "make_feasible", "clamp_speed", "floor_lift"]
+log = logging.getLogger(__name__)
+
+__all__ = ["FeasibleReport", "make_feasible", "clamp_speed", "floor_lift", "feasible_motion"]
 
 _CHUNK = 1024  # frames per FK batch of the floor pass
 
@@ -131,3 +134,16 @@ def make_feasible(motion: TargetMotion, model, *, speed_fraction: float = 0.95, 
     report = FeasibleReport(float(np.abs(new_q - q).max()) if q.size else 0.0, int(changed.sum()),
                             float(lift.max()) if lift.size else 0.0, int((lift > 0).sum()))  # fmt: skip
     return out, report
+
+
+def feasible_motion(motion: TargetMotion, geometry, physics) -> TargetMotion:
+    """``motion`` made feasible after a solve with ``physics`` (a
+    :class:`~mer_models.solver.physics.PhysicsConfig`) if it asks for it
+    (:func:`mer_models.retarget.feasible.make_feasible`)."""
+    if not physics.feasible:
+        return motion
+    out, rep = make_feasible(motion, geometry, speed_fraction=physics.speed_fraction)
+    if rep.frames_clamped or rep.frames_lifted:
+        log.info("feasible: %d frames' angles slowed (at most %.3f rad), %d frames lifted (at most %.1f cm)",
+                 rep.frames_clamped, rep.max_angle_change, rep.frames_lifted, 100 * rep.max_lift)  # fmt: skip
+    return out

@@ -141,7 +141,7 @@ def optimize_batch(
     collision model is ``geometry``, every sample's reference of ``ref_skeleton`` (the source's
     foot contacts are read from the batch's reference features, at ``fps`` [Hz]); with
     ``target_skeleton`` (the batch's one target) each window is then made feasible
-    (:func:`mer_models.retarget.clip.feasible_motion`).
+    (:func:`mer_models.retarget.feasible.feasible_motion`).
     """
     g = graph_from_batch(batch, "tgt", device)
     goal = batch["ref_scaled_pos"].to(device, torch.float32)
@@ -164,7 +164,7 @@ def optimize_batch(
     if phys is not None and target_skeleton is not None and physics.feasible:
         from mer_models.export.writers import TargetMotion
 
-        from .clip import feasible_motion
+        from .feasible import feasible_motion
 
         J = target_skeleton.num_nodes
         for b in range(res["q"].shape[0]):

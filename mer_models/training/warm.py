@@ -28,8 +28,8 @@ from mer_models.config import RunConfig
 from mer_models.hub.checkpoint_files import save_checkpoint
 from mer_models.warm.model import WarmModel, frames_of
 
+from .loop import LOG_FILE, TrainResult, _lr, append_log, ema_decay, note_robots, start_state, update_average
 from .order import OrderSampler
-from .train import LOG_FILE, TrainResult, _lr, append_log, ema_decay, note_robots, start_state, update_average
 
 log = logging.getLogger(__name__)
 

@@ -81,8 +81,9 @@ def check_robot(ckpt: Checkpoint, robot: str, role: str = "targets", fingerprint
             f"the model {ckpt.path} was never trained with {robot!r} as a {what} robot "
             f"(it saw: {', '.join(sorted(seen)) or 'none'})",
             element=robot,
-            fix=f"fine-tune it for {robot!r} with `mer finetune --robot {robot} ...`, or use the optimiser "
-                "(`--method optimize` in mer retarget, `--methods optimize` in mer evaluate)",
+            fix=f"retarget zero-shot with --allow-unseen (mer retarget; expect lower accuracy), fine-tune it for {robot!r} "
+                f"with `mer finetune --robot {robot} ...`, or use the optimiser (`--method optimize` in mer retarget, "
+                "`--methods optimize` in mer evaluate)",
         )
     if fingerprint is not None and seen[robot] and seen[robot] != fingerprint:
         log.warning(

@@ -42,4 +42,6 @@ def test_the_results_table_says_which_robots_are_zero_shot():
     rows = [RobotResult("h1", True, 10, 1.0, {"g_mpbpe": 0.1}), RobotResult("newbot", False, 10, 2.0, {"g_mpbpe": 0.2})]
     lines = format_results(rows).splitlines()
     assert lines[1].split()[:2] == ["h1", "yes"] and "no: zero-shot" in lines[2]
-    assert "nan" in lines[1] and np.isclose(float(lines[2].split()[3]), 0.2)
+    assert lines[1].split()[3] == "-" and np.isclose(float(lines[2].split()[3]), 0.2)  # missing: "-"
+    assert lines[0].split()[4:7] == ["g_mpbpe[m]", "mpboe[rad]", "mpbve[m/s]"] and "jerk_frame[rad/f3]" in lines[0]
+    assert any(line.split()[0] == "limit_violation" for line in lines[3:])  # the legend, one line per column

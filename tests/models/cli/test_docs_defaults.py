@@ -41,7 +41,8 @@ def test_allow_unseen_on_one_file_says_the_result_is_zero_shot(tmp_path, capsys,
     argv = ["retarget", str(src), "--source", "g1", "--target", "atlas", "--model", str(micro_checkpoint), "--steps", "1",
             "-o", str(tmp_path / "atlas.csv")]  # fmt: skip
     assert main(argv) == 1  # the micro model never saw atlas: refused ...
-    assert "never trained with 'atlas'" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "never trained with 'atlas'" in err and "retarget zero-shot with --allow-unseen" in err  # the fix names the flag
     assert main([*argv, "--allow-unseen"]) == 0  # ... and retargeted zero-shot when asked, with a notice
     err = capsys.readouterr().err
     assert "zero-shot: the model never saw 'atlas' as a target" in err and "--method optimize" in err

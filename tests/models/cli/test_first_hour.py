@@ -40,9 +40,14 @@ def test_the_default_path_is_the_optimiser_and_it_says_so(tmp_path, capsys):
 def test_every_run_ends_with_a_metrics_table(tmp_path, capsys):
     assert main(["retarget", str(_clip(tmp_path)), "--source", "g1", "--target", "h1", "-o", str(tmp_path / "o.csv"), "--quiet"]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
-    assert lines[-2].split()[:3] == ["target", "g-mpbpe[m]", "mpboe[rad]"] and "skate[m/s]" in lines[-2]
-    row = lines[-1].split()
+    head = next(i for i, line in enumerate(lines) if line.startswith("target"))
+    assert lines[head].split()[:3] == ["target", "g_mpbpe[m]", "mpboe[rad]"] and "skate_median[m/s]" in lines[head]
+    row = lines[head + 1].split()
     assert row[0] == "h1" and 0 < float(row[1]) < 0.05
+    # the legend under the row: every column, named as in --json and docs/model.md
+    from mer_models.retarget.columns import METRIC_COLUMNS
+
+    assert [line.split()[0] for line in lines[head + 2:]] == [c.header for c in METRIC_COLUMNS]
 
 
 def test_a_solve_reports_its_progress():

@@ -122,14 +122,14 @@ def test_a_failure_while_rendering_leaves_nothing_half_written(tmp_path, monkeyp
     m = _motion(10)
     path = tmp_path / f"v.{ext}"
     path.write_bytes(b"the earlier video")
-    real = video_mod._Renderer.frame
+    real = video_mod.VideoRenderer.frame
 
     def frame(self, f):
         if f == 5:
             raise RuntimeError("rendering broke")
         return real(self, f)
 
-    monkeypatch.setattr(video_mod._Renderer, "frame", frame)
+    monkeypatch.setattr(video_mod.VideoRenderer, "frame", frame)
     with pytest.raises(RuntimeError, match="rendering broke"):
         write_video(path, m, size=SIZE, fps=30.0, **_reference_of(m))
     assert path.read_bytes() == b"the earlier video" and not _leftovers(tmp_path)

@@ -113,3 +113,41 @@ def test_the_viewer_page_shows_the_robots_meshes_and_the_check_fails_without_the
         shot = screenshot(browser, v.url, tmp_path / "shapes.png")
     assert shape_pixels(shot) > 1500, shape_pixels(shot)
     assert mesh_pixels(shot) < 100, mesh_pixels(shot)
+
+
+def bone_pixels(rgb: np.ndarray) -> np.ndarray:
+    """Where the bones' dark grey (mer_models.export.viewer.BONE_RGB) is drawn, in the robot's region (mask)."""
+    a = _region(rgb)
+    return (a.max(-1) < 90) & (a.max(-1) - a.min(-1) < 25)
+
+
+def robot_components(rgb: np.ndarray) -> tuple[int, float]:
+    """The robot's pieces on screen (collision amber and bone grey, touching pixels joined): how many
+    pieces of over 30 pixels, and the share of the robot's pixels in the largest."""
+    from scipy import ndimage
+
+    a = _region(rgb)
+    amber = (a[..., 0] - a[..., 2] > 60) & (a[..., 1] - a[..., 2] > 20) & (a[..., 0] > 100)
+    mask = ndimage.binary_dilation(amber | bone_pixels(rgb), iterations=2)  # anti-aliased edges between them
+    labels, n = ndimage.label(mask)
+    sizes = np.bincount(labels.ravel())[1:]
+    return int((sizes > 30).sum()), float(sizes.max() / sizes.sum()) if n else 0.0
+
+
+def test_a_builtin_robot_is_drawn_connected_by_its_bones(browser, tmp_path):
+    """issue 52: a built-in's collision pieces floated apart in `mer view`; its bones now join them
+    into one connected robot on screen (one piece), and with the bones off none is drawn."""
+    g1 = load_robot("g1")
+    s = g1.skeleton
+    m = synthetic_motion(s, 20, seed=2)
+    motion = TargetMotion(s, 30.0, m["q"], m["base_pos"], quat_to_matrix(torch.from_numpy(m["base_quat"])).numpy())
+    meshes = robot_meshes(g1)
+    assert meshes.kind != "mesh"  # a built-in without visual meshes: its collision shapes
+    with serve_motion(motion, robot=g1, meshes=meshes, port=0, play=False) as v:
+        shot = screenshot(browser, v.url, tmp_path / "builtin.png")
+    pieces, largest = robot_components(shot)
+    assert shape_pixels(shot) > 1500 and bone_pixels(shot).sum() > 200, (shape_pixels(shot), bone_pixels(shot).sum())
+    assert pieces == 1 and largest > 0.99, (pieces, largest)
+    with serve_motion(motion, robot=g1, meshes=meshes, port=0, play=False, bones=False) as v:
+        shot = screenshot(browser, v.url, tmp_path / "no_bones.png")
+    assert bone_pixels(shot).sum() < 50, bone_pixels(shot).sum()  # no bones: the check above cannot pass

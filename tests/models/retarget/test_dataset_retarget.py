@@ -128,7 +128,8 @@ def test_the_model_retargets_each_clip_to_all_targets_in_one_pass(dataset, tmp_p
 def test_a_killed_run_resumes_and_leaves_nothing_half_written(dataset, tmp_path):
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "mer_models", "retarget", "--input", str(dataset), "--source", "g1",
-           "--targets", "h1", "tron1", "atlas", "--out", str(out), "--quiet"]  # fmt: skip
+           "--targets", "h1", "tron1", "atlas", "--out", str(out), "--quiet", "--no-physics"]  # fmt: skip
+    # --no-physics: resuming does not depend on the terms (they are test_physics_flag_runs_both_paths...'s); a third of the time
     proc = subprocess.Popen(cmd, env=_env(tmp_path), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
     t0 = time.monotonic()
     killed = False

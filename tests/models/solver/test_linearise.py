@@ -40,7 +40,7 @@ def test_normal_equations_are_the_residual_jacobians(mimic):
     g = _double(graph_from_batch(b, "tgt"))
     if mimic:
         g = _with_mimics(g)
-    B, T, J = 2, 4, g.parents.shape[1]
+    B, T, J = 2, 2, g.parents.shape[1]  # two frames: the cost is one backward pass per residual row of every frame
     torch.manual_seed(0)
     lo, hi = g.lower[:, None], g.upper[:, None]
     q = (lo + (hi - lo) * (0.25 + 0.5 * torch.rand(B, T, J, dtype=torch.float64))) * g.revolute[:, None]
@@ -64,7 +64,7 @@ def test_normal_equations_are_the_residual_jacobians(mimic):
 
     step0 = torch.zeros(B, T, P.n, dtype=torch.float64)
     r = residuals(step0)
-    jac = torch.autograd.functional.jacobian(residuals, step0)  # (B, T, rows, B, T, n)
+    jac = torch.autograd.functional.jacobian(residuals, step0)  # (B, T, rows, B, T, n): one backward pass per row
     for bi in range(B):
         for t in range(T):
             jj = jac[bi, t, :, bi, t]  # (rows, n): frames and samples are independent

@@ -37,7 +37,7 @@ def test_retarget_refine_writes_the_refined_motion(tmp_path, capsys, micro_check
     a, b = np.loadtxt(tmp_path / "a.csv", delimiter=","), np.loadtxt(tmp_path / "b.csv", delimiter=",")
     assert a.shape == b.shape and not np.allclose(a, b)
     assert main(["retarget", str(src), "--source", "g1", "--target", "h1", "--method", "optimize", "--refine", "3", "-o", str(tmp_path / "c.csv")]) == 1
-    assert "--refine refines a model's output" in capsys.readouterr().err
+    assert "--refine 3: --method optimize runs no model" in capsys.readouterr().err
 
 
 def _warm_start_case():
