@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import re
 from dataclasses import dataclass, field
@@ -14,7 +13,7 @@ import numpy as np
 import yaml
 
 from mer_data.base.errors import RobotCardError
-from mer_data.base.safe_io import decode_utf8, read_regular_file, safe_yaml_load
+from mer_data.base.safe_io import decode_utf8, read_regular_file, safe_yaml_load, strict_json_loads
 from mer_data.skeleton import KEYPOINTS, Skeleton
 
 from .builder import build_skeleton
@@ -114,7 +113,7 @@ def load_keypoints_file(path: str | Path) -> dict[str, KeypointSpec | None]:
     raw = read_regular_file(path, RobotCardError, "MER_MAX_CARD_BYTES", fix="check the path given to --keypoints")
     text = decode_utf8(raw, path, RobotCardError)
     try:
-        data = json.loads(text) if path.suffix == ".json" else safe_yaml_load(text)
+        data = strict_json_loads(text) if path.suffix == ".json" else safe_yaml_load(text)
     except (ValueError, yaml.YAMLError, RecursionError) as exc:
         raise RobotCardError(f"cannot parse the key point file: {str(exc)[:300]}", path=path) from None
     if isinstance(data, dict) and "keypoints" in data:
