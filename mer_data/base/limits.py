@@ -53,7 +53,7 @@ LIMITS: dict[str, Limit] = {
         Limit("MER_MAX_URDF_ELEMENTS", 10_000, "elements", "number of <link> (or of <joint>) elements in a URDF"),
         Limit("MER_MAX_XML_DEPTH", 64, "levels", "nesting depth of XML elements in a URDF"),
         Limit("MER_MAX_URDF_LINE_BYTES", 2**20, "bytes", "length of one line of a URDF"),
-        Limit("MER_MAX_MJCF_ELEMENTS", 20_000, "elements", "elements of an MJCF once <replicate> and <flexcomp> are expanded"),
+        Limit("MER_MAX_MJCF_ELEMENTS", 5_000, "elements", "elements of an MJCF with <replicate>, <flexcomp> and sub-models expanded"),
         Limit("MER_MAX_MESH_BYTES", 32 * 2**20, "bytes", "size of one mesh file (STL, OBJ, ...) of a robot"),
         Limit("MER_MAX_CARD_BYTES", 2**20, "bytes", "size of a robot card or key-point file"),
         Limit("MER_MAX_MOTION_BYTES", 64 * 2**20, "bytes", "size of a motion CSV (after gunzip)"),

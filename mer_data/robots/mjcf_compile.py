@@ -121,14 +121,17 @@ def compile_mjcf(path: str | Path, *, geometry: bool = True, allowed: tuple[Path
         mat.textures = [""] * len(mat.textures)
     for s in list(spec.skins):
         spec.delete(s)
-    robot_geoms = [g for g in spec.geoms if g.parent is not None and g.parent.name != "world"]  # not the floor
+    # spec.geoms walks the whole tree on every access (quadratic over a loop): read once, kept current
+    geoms = list(spec.geoms)
+    robot_geoms = [g for g in geoms if g.parent is not None and g.parent.name != "world"]  # not the floor
     group_mode = not any(_collides(g, False) for g in robot_geoms)
     hfields = {h.name for h in spec.hfields}
-    for g in list(spec.geoms):
-        if g.type == mujoco.mjtGeom.mjGEOM_HFIELD or (g.hfieldname and g.hfieldname in hfields):
-            spec.delete(g)
+    terrain = [g for g in geoms if g.type == mujoco.mjtGeom.mjGEOM_HFIELD or (g.hfieldname and g.hfieldname in hfields)]
+    for g in terrain:
+        spec.delete(g)
     for h in list(spec.hfields):
         spec.delete(h)
+    mesh_geoms = [g for g in geoms if g.type == mujoco.mjtGeom.mjGEOM_MESH]  # (height-field geoms are not mesh geoms)
 
     drop: dict[str, tuple[str, str]] = {}  # mesh name -> (file, why it cannot be read)
     for mesh in spec.meshes:
@@ -143,11 +146,17 @@ def compile_mjcf(path: str | Path, *, geometry: bool = True, allowed: tuple[Path
     warnings: list[str] = []
 
     def drop_meshes(names: dict[str, tuple[str, str]]) -> None:
-        for g in list(spec.geoms):
-            if g.type == mujoco.mjtGeom.mjGEOM_MESH and g.meshname in names:
+        if not names:
+            return
+        keep = []
+        for g in mesh_geoms:
+            if g.meshname in names:
                 body = g.parent.name or f"body{g.parent.id}"
                 (lost if _collides(g, group_mode) else visual).setdefault(body, []).append(g.meshname)
                 spec.delete(g)
+            else:
+                keep.append(g)
+        mesh_geoms[:] = keep
         for mesh in list(spec.meshes):
             if mesh.name in names:
                 spec.delete(mesh)

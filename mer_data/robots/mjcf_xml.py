@@ -185,7 +185,7 @@ def count_expanded(root: etree._Element, path: Path, attached: dict[str, int] | 
             total += m * (attached or {}).get(el.get("model", ""), 0)
         if total > cap:
             msg, fix = too_big("MER_MAX_MJCF_ELEMENTS", f"over {cap:,}")
-            raise MalformedURDFError(f"{msg} once <replicate>/<flexcomp> are expanded (here {m:,} copies)", path=path,
+            raise MalformedURDFError(f"{msg} (this element is made {m:,} times)", path=path,
                                      line=el.sourceline, element=f"<{el.tag}>", fix=fix)  # fmt: skip
     return total
 
