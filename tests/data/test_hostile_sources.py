@@ -5,10 +5,10 @@ exhausting memory. ``tools/hostile_robots.py`` runs the full-size cases and meas
 
 from __future__ import annotations
 
+import hostile_sources as hs
 import numpy as np
 import pytest
 
-import hostile_sources as hs
 from mer_data.base.errors import BVHError, MalformedURDFError, MerError, MotionFormatError, RobotCardError
 from mer_data.base.numbers import parse_count, parse_number
 from mer_data.base.safe_io import safe_yaml_load, strict_json_loads

@@ -10,10 +10,10 @@ import socket
 import subprocess
 import sys
 
+import hostile_sources as hs
 import pytest
 import torch
 
-import hostile_sources as hs
 from mer_models.cli import main
 
 BUILD = ["shards", "build", "--synthetic", "1", "--robots", "g1", "--targets", "g1", "--augment", "0", "--split", "all"]
