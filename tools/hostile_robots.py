@@ -139,7 +139,7 @@ def probe(cases: list[dict], tree: Path, cap_mib: int | None = None, wrap: list[
     if cap_mib:
         cmd = ["prlimit", f"--as={cap_mib << 20}", *cmd]
     try:
-        r = subprocess.run((wrap or []) + cmd, env=env, capture_output=True, text=True, timeout=timeout)
+        r = subprocess.run((wrap or []) + cmd, env=env, capture_output=True, text=True, timeout=timeout, cwd=tree)  # not this checkout
         stdout, died = r.stdout, f"rc {r.returncode}: {r.stderr[-200:]}"
     except subprocess.TimeoutExpired as exc:
         stdout = (exc.stdout or b"").decode() if isinstance(exc.stdout, bytes) else (exc.stdout or "")
@@ -273,7 +273,7 @@ def sigterm_case(root: Path, tree: Path) -> dict:
         port = s.getsockname()[1]
     env = {**os.environ, "PYTHONPATH": str(tree), "MER_HOME": str(root / "home")}
     p = subprocess.Popen([sys.executable, "-c", "import sys; from mer_models.cli import main; sys.exit(main())", "view", str(csv), "--robot", "g1", "--port", str(port),
-                          "--paused", "--collision"], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+                          "--paused", "--collision"], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tree)  # fmt: skip
     t0, row = time.perf_counter(), {"label": "SIGTERM with a client connected", "peak": 0, "growth": 0, "message": ""}
     try:
         line = ""
