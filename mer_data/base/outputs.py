@@ -70,7 +70,7 @@ def check_output_file(path: str | Path, what: str = "output file") -> Path:
     """``path`` can be written as a file (its folder exists or can be made, and is writable)."""
     path = Path(path)
     if path.is_dir():
-        raise OutputPathError(f"{what}: is a folder, not a file name", path=path, fix="name a file (e.g. OUT.csv)")
+        raise OutputPathError(f"{what}: is a folder, not a file name", path=path, fix="name a file to write, not a folder")
     _writable_folder(_existing_ancestor(path.parent), path, what)
     return path
 
