@@ -5,6 +5,8 @@ MuJoCo's own compiler reads the model (``mujoco.MjSpec``: ``<include>``, default
 tree is built from the **compiled** model (``body_pos``, ``body_quat``, ``jnt_pos``, ``jnt_axis``,
 ``jnt_range``, ``jnt_limited``, ``qpos0``), so the result is a :class:`~mer_data.robots.urdf.UrdfModel`
 that the skeleton builder, key-point proposal, collision shapes and the registry use unchanged.
+Before MuJoCo sees it, the XML is read by :mod:`.mjcf_xml` (every file confined to the model's
+folder, the expansion of ``<replicate>``/``<flexcomp>`` counted) and compiled by :mod:`.mjcf_compile`.
 
 Conventions (docs/robots.md §MJCF):
 
@@ -31,7 +33,7 @@ Conventions (docs/robots.md §MJCF):
   MuJoCo's (half extents, half lengths) turned into the URDF entries' (full box sizes, capsule
   and cylinder lengths); meshes carry MuJoCo's compiled vertices (``mesh_vert``, scale and mesh
   frame applied), ellipsoids points on their surface.
-- **missing files**: mesh files that are not there (or not regular files, or over 64 MB) are
+- **missing files**: mesh files that are not there (or not regular files, or over ``MER_MAX_MESH_BYTES``) are
   dropped with the geoms that use them, and the bodies that lost geometry are named in a warning
   (their collision falls back to fitted capsules). Textures and skins are never read.
 """
