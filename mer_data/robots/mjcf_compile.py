@@ -101,7 +101,7 @@ def compile_mjcf(path: str | Path, *, geometry: bool = True, allowed: tuple[Path
     import mujoco
 
     path = Path(path)
-    expanded = expand_mjcf(path, allowed=allowed)  # files confined, expansion counted before MuJoCo runs
+    expanded = expand_mjcf(path, allowed=allowed, assets=geometry)  # files confined, expansion counted before MuJoCo runs
     lines = expanded.lines
     text = etree.tostring(expanded.root, encoding="unicode")
     try:

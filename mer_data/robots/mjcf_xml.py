@@ -120,18 +120,19 @@ def _expand(root: etree._Element, path: Path, main_dir: Path, stack: tuple[Path,
             kids[-1].tail = (kids[-1].tail or "") + (tail or "")
 
 
-def _check_files(root: etree._Element, path: Path, folder: Path, roots: tuple[Path, ...]) -> None:
+def _check_files(root: etree._Element, path: Path, folder: Path, roots: tuple[Path, ...], assets: bool = True) -> None:
     """Every compile-time file of the (expanded) model inside ``roots``: the compiler's folders,
-    and each file against the model's folder and against each of those folders (MuJoCo's bases)."""
+    and each file against the model's folder and against each of those folders (MuJoCo's bases).
+    ``assets=False``: only the files read while MuJoCo parses (a flexcomp's), not the assets it compiles."""
     bases = [folder]
     for comp in root.iter("compiler"):
         for attr in _DIRS:
             d = comp.get(attr)
             if d:
                 where = Path(d) if Path(d).is_absolute() else folder / d
-                bases.append(_confine(where, roots, what=f"<compiler {attr}={d!r}>", path=path, el=comp))
+                bases.append(_confine(where, roots, what=f"<compiler {attr}={d!r}>", path=path, el=comp) if assets else where)
     for el in root.iter(etree.Element):
-        if el.tag in ("include", "model"):
+        if el.tag in ("include", "model") or (not assets and el.tag != "flexcomp"):
             continue
         for attr in _FILE_ATTRS:
             name = el.get(attr)
@@ -211,9 +212,11 @@ class ExpandedMjcf:
     models: list[tuple[etree._Element, Path, etree._Element]] = field(default_factory=list)
 
 
-def expand_mjcf(path: Path, *, allowed: tuple[Path, ...] = ()) -> ExpandedMjcf:
+def expand_mjcf(path: Path, *, allowed: tuple[Path, ...] = (), assets: bool = True) -> ExpandedMjcf:
     """Read ``path`` and everything it includes, confined to its folder (and ``allowed`` folders),
-    and count what it expands to (module docstring). Raises :class:`MalformedURDFError`."""
+    and count what it expands to (module docstring). ``assets=False``: the asset files (meshes,
+    textures...) will not be read (kinematics only), so where they point is not checked; includes
+    and sub-models always are. Raises :class:`MalformedURDFError`."""
     path = Path(path)
     folder = path.parent
     roots = tuple(dict.fromkeys(Path(r).resolve() for r in (folder, *allowed)))
@@ -222,7 +225,7 @@ def expand_mjcf(path: Path, *, allowed: tuple[Path, ...] = ()) -> ExpandedMjcf:
     lines = source_lines(root)
     _expand(root, path, folder, (path.resolve(),), budget, roots)
     _check_depth(root, str(path))
-    _check_files(root, path, folder, roots)
+    _check_files(root, path, folder, roots, assets)
     out = ExpandedMjcf(root, lines)
     attached: dict[str, int] = {}
     for el in root.iter("model"):
@@ -233,7 +236,7 @@ def expand_mjcf(path: Path, *, allowed: tuple[Path, ...] = ()) -> ExpandedMjcf:
         resolved = _confine(target, roots, what=f"<model file={name!r}>", path=path, el=el)
         sub = _read_xml(resolved, f"<model file={name!r}> (relative to the model's folder {folder})", budget)
         _expand(sub, resolved, folder, (path.resolve(), resolved), budget, roots)
-        _check_files(sub, resolved, resolved.parent, roots)
+        _check_files(sub, resolved, resolved.parent, roots, assets)
         if next(sub.iter("model"), None) is not None:
             raise MalformedURDFError("a sub-model loads another <model>; mer reads one level of <asset><model>",
                                      path=resolved, line=next(sub.iter("model")).sourceline, element="<model>",

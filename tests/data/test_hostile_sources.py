@@ -167,3 +167,10 @@ def test_duplicate_keys_are_refused_in_json_and_yaml(tmp_path):
     with pytest.raises(ValueError, match="twice"):
         strict_json_loads('{"a": {"b": 1, "b": 2}}')
     assert safe_yaml_load("a: 1\nb: {c: 2}\n") == {"a": 1, "b": {"c": 2}}
+
+
+def test_a_kinematics_only_reload_does_not_refuse_asset_paths_it_never_reads(tmp_path):
+    path = hs.outside_mjcf(tmp_path / "model", "meshdir-abs", tmp_path / "outside")  # as an older registry copy may hold
+    with pytest.raises(MalformedURDFError, match="outside"):
+        load_mjcf(path)
+    assert "torso" in load_mjcf(path, geometry=False).links  # meshes dropped unread: nothing outside is opened
