@@ -372,7 +372,7 @@ def table(results: dict[str, list[dict]]) -> tuple[list[str], int]:
         outcomes = sorted({r["outcome"] for r in rows})
         good = all(not o.startswith("NOT") and o not in ("ok",) for o in outcomes)
         bad += not good
-        errors = [o for o in outcomes if o.endswith("Error")]
+        errors = [o for o in outcomes if o.endswith("Error") and not o.startswith("NOT")]
         shown = ", ".join((["MerError"] if len(errors) > 1 else errors) + [o for o in outcomes if o not in errors])
         worst = max(rows, key=lambda r: r["peak"])
         lines.append(f"{name:<36} {len(rows):>5}  {shown[:40]:<40} {worst['peak'] / 2**20:>8.0f} MiB "
