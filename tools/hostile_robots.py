@@ -281,6 +281,7 @@ def sigterm_case(root: Path, tree: Path) -> dict:
             line = p.stdout.readline()
             if not line:
                 raise RuntimeError(f"mer view did not start (exit {p.wait(timeout=20)}): {p.stderr.read()[-300:]}")
+        port = int(line.split("http://127.0.0.1:", 1)[1].split()[0].strip("/"))  # the port it took
         with connect(f"ws://127.0.0.1:{port}", origin=f"http://127.0.0.1:{port}", subprotocols=[f"viser-v{viser.__version__}"],
                      open_timeout=20) as ws:  # fmt: skip
             ws.recv(timeout=20)

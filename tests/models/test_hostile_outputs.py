@@ -119,6 +119,7 @@ def test_sigterm_ends_mer_view_with_close_frames(tmp_path):
         while "viewing" not in line:  # viser prints its banner first
             line = p.stdout.readline()
             assert line, p.stderr.read()
+        port = int(line.split("http://127.0.0.1:", 1)[1].split()[0].strip("/"))  # the port it took
         with connect(f"ws://127.0.0.1:{port}", origin=f"http://127.0.0.1:{port}", subprotocols=[f"viser-v{viser.__version__}"],
                      open_timeout=30) as ws:  # fmt: skip
             ws.recv(timeout=30)
