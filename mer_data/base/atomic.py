@@ -35,6 +35,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from .errors import DiskFullError, OutputPathError
+from .outputs import os_refusal
 
 __all__ = [
     "atomic_write",
@@ -151,7 +152,8 @@ def disk_full(path: str | Path, need: int | None = None) -> DiskFullError:
 
 @contextmanager
 def disk_full_as_error(path: str | Path, need: int | None = None) -> Iterator[None]:
-    """Within the block, an ``ENOSPC``/``EDQUOT`` (or HDF5's report of it) becomes :func:`disk_full`."""
+    """Within the block, an ``ENOSPC``/``EDQUOT`` (or HDF5's report of it) becomes :func:`disk_full`,
+    a refused write (read-only, permission, a file in the way) :class:`OutputPathError` (:func:`~.outputs.os_refusal`)."""
     try:
         yield
     except DiskFullError:
@@ -159,6 +161,9 @@ def disk_full_as_error(path: str | Path, need: int | None = None) -> Iterator[No
     except (OSError, RuntimeError) as exc:
         if is_disk_full(exc):
             raise disk_full(path, need) from None
+        refused = os_refusal(exc, path)  # a read-only folder, a file where a folder is: one clear error
+        if refused is not None:
+            raise refused from None
         raise
 
 

@@ -14,7 +14,8 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
-__all__ = ["Limit", "LIMITS", "limit", "too_big", "MAX_LENGTH_M", "MAX_NUMBER", "LINK_SCALE_RANGE"]
+__all__ = ["Limit", "LIMITS", "limit", "too_big", "check_motion_size", "check_upsampling", "MAX_LENGTH_M", "MAX_NUMBER",
+           "LINK_SCALE_RANGE"]
 
 #: Largest length accepted in a URDF origin, collision shape or key-point offset [m].
 MAX_LENGTH_M = 1e3
@@ -52,15 +53,19 @@ LIMITS: dict[str, Limit] = {
         Limit("MER_MAX_URDF_ELEMENTS", 10_000, "elements", "number of <link> (or of <joint>) elements in a URDF"),
         Limit("MER_MAX_XML_DEPTH", 64, "levels", "nesting depth of XML elements in a URDF"),
         Limit("MER_MAX_URDF_LINE_BYTES", 2**20, "bytes", "length of one line of a URDF"),
+        Limit("MER_MAX_MJCF_ELEMENTS", 5_000, "elements", "elements of an MJCF with <replicate>, <flexcomp> and sub-models expanded"),
+        Limit("MER_MAX_MESH_BYTES", 32 * 2**20, "bytes", "size of one mesh file (STL, OBJ, ...) of a robot"),
         Limit("MER_MAX_CARD_BYTES", 2**20, "bytes", "size of a robot card or key-point file"),
-        Limit("MER_MAX_MOTION_BYTES", 256 * 2**20, "bytes", "size of a motion CSV (after gunzip)"),
+        Limit("MER_MAX_MOTION_BYTES", 64 * 2**20, "bytes", "size of a motion CSV (after gunzip)"),
         Limit("MER_MAX_CSV_LINE_BYTES", 64 * 2**10, "bytes", "length of one line of a motion CSV"),
         Limit("MER_MAX_CONFIG_BYTES", 2**20, "bytes", "size of a checkpoint's config.json"),
         Limit("MER_MAX_MODEL_PARAMETERS", 500_000_000, "parameters", "parameters of a model built from a config"),
-        Limit("MER_MAX_BVH_BYTES", 256 * 2**20, "bytes", "size of a BVH motion capture file"),
+        Limit("MER_MAX_BVH_BYTES", 32 * 2**20, "bytes", "size of a BVH motion capture file"),
         Limit("MER_MAX_BVH_LINE_BYTES", 2**20, "bytes", "length of one line of a BVH file"),
         Limit("MER_MAX_BVH_JOINTS", 1_000, "joints", "number of joints (and End Sites) in a BVH hierarchy"),
         Limit("MER_MAX_BVH_FRAMES", 2_000_000, "frames", "number of frames of a BVH motion"),
+        Limit("MER_MAX_MOTION_VALUES", 16_000_000, "numbers", "numbers of a motion a reader produces (frames x values per frame, after resampling)"),
+        Limit("MER_MAX_UPSAMPLING", 8, "times", "how many times more frames resampling makes than a motion has (output rate / its rate)"),
         Limit("MER_MAX_SHARD_ROWS", 10_000_000, "rows", "declared number of rows (windows) of a shard or teacher file"),
         Limit("MER_MAX_HDF5_ATTR_BYTES", 16 * 2**20, "bytes", "size of one HDF5 attribute (shard metadata)"),
         Limit("MER_MAX_HDF5_CHUNK_BYTES", 16 * 2**20, "bytes", "decompressed size of one HDF5 chunk"),
@@ -92,3 +97,32 @@ def too_big(name: str, found: int | str) -> tuple[str, str]:
     message = f"{lim.what} is {shown} {lim.unit}, over mer's limit of {lim.value:,} {lim.unit}"
     fix = f"if the input is genuine, raise the limit: set {lim.name}=N in the environment (default {lim.default:,})"
     return message, fix
+
+
+def check_motion_size(frames: int, per_frame: int, *, what: str, error: type | None = None, path=None,
+                      line: int | None = None) -> None:  # fmt: skip
+    """Refuse, before it is allocated, a motion array of ``frames`` x ``per_frame`` numbers over
+    ``MER_MAX_MOTION_VALUES`` (a limit on what a reader PRODUCES: a resampled motion, a BVH's
+    kinematics of every joint, a table of channels), whatever the file declared.
+
+    Every reader of motion (CSV, BVH, resampling, new formats) calls it with the size it is about to
+    make. ``error``: the :class:`~mer_data.base.errors.MerError` subclass to raise (default MerError).
+    """
+    from .errors import MerError
+
+    n = int(frames) * int(per_frame)
+    if n > limit("MER_MAX_MOTION_VALUES"):
+        msg, fix = too_big("MER_MAX_MOTION_VALUES", n)
+        raise (error or MerError)(f"{what}: {int(frames):,} frames x {int(per_frame):,} numbers; {msg}", path=path,
+                                  line=line, fix=f"split the motion into shorter clips, or {fix}")  # fmt: skip
+
+
+def check_upsampling(fps_in: float, fps_out: float, *, error: type | None = None, path=None, line: int | None = None) -> None:
+    """Refuse resampling a motion at ``fps_in`` [Hz] to ``fps_out`` [Hz] when it makes more than
+    ``MER_MAX_UPSAMPLING`` times its frames (a ``Frame Time: 10`` BVH, ``--fps 0.001`` on a CSV)."""
+    from .errors import MerError
+
+    if not (fps_in > 0 and fps_out > 0) or fps_out / fps_in > limit("MER_MAX_UPSAMPLING"):
+        msg, fix = too_big("MER_MAX_UPSAMPLING", f"{fps_out / fps_in:,.4g}" if fps_in > 0 else "infinite")
+        raise (error or MerError)(f"the motion's frame rate {fps_in:g} Hz resampled to {fps_out:g} Hz: {msg}", path=path,
+                                  line=line, fix=f"check the frame rate (--fps, a BVH's Frame Time in seconds), or {fix}")  # fmt: skip

@@ -23,7 +23,8 @@ import yaml
 from .errors import MerError
 from .limits import limit, too_big
 
-__all__ = ["read_regular_file", "check_regular_file", "gunzip_limited", "decode_utf8", "safe_yaml_load"]
+__all__ = ["read_regular_file", "check_regular_file", "gunzip_limited", "decode_utf8", "safe_yaml_load", "strict_json_loads",
+           "DuplicateKeyError"]
 
 _KINDS = (
     (stat.S_ISDIR, "a directory"),
@@ -163,9 +164,44 @@ def decode_utf8(data: bytes, path: str | Path, error: type[MerError]) -> str:
         ) from None
 
 
+class DuplicateKeyError(ValueError):
+    """A mapping names the same key twice (JSON and YAML parsers silently keep the last)."""
+
+
+def _no_duplicates(pairs: list[tuple[Any, Any]]) -> dict:
+    out: dict = {}
+    for k, v in pairs:
+        if k in out:
+            raise DuplicateKeyError(f"the key {k!r} appears twice in one mapping (only one value can hold)")
+        out[k] = v
+    return out
+
+
+def strict_json_loads(text: str | bytes) -> Any:
+    """``json.loads`` that refuses a key given twice in one object (:class:`DuplicateKeyError`, a
+    ``ValueError``) and the non-standard constants ``NaN``, ``Infinity``, ``-Infinity``."""
+    import json
+
+    def constant(name: str) -> Any:
+        raise ValueError(f"{name} is not JSON")
+
+    return json.loads(text, object_pairs_hook=_no_duplicates, parse_constant=constant)
+
+
 class _NoAliasLoader(yaml.SafeLoader):
     """PyYAML's safe loader without aliases: ``*ref`` can expand a small file exponentially
-    (a "billion laughs"); nothing mer reads needs them."""
+    (a "billion laughs"); nothing mer reads needs them. A key given twice in one mapping is refused."""
+
+    def construct_mapping(self, node, deep=False):  # type: ignore[override]
+        seen: set = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=True)
+            if isinstance(key, (str, int, float, bool)) or key is None:
+                if key in seen:
+                    raise yaml.constructor.ConstructorError(None, None, f"the key {key!r} appears twice in one mapping",
+                                                            key_node.start_mark)  # fmt: skip
+                seen.add(key)
+        return super().construct_mapping(node, deep=deep)
 
     def compose_node(self, parent, index):  # type: ignore[override]
         if self.check_event(yaml.AliasEvent):
@@ -175,5 +211,5 @@ class _NoAliasLoader(yaml.SafeLoader):
 
 
 def safe_yaml_load(text: str) -> Any:
-    """``yaml.safe_load`` that refuses aliases (raises ``yaml.YAMLError`` with the position)."""
+    """``yaml.safe_load`` that refuses aliases and duplicate keys (raises ``yaml.YAMLError`` with the position)."""
     return yaml.load(text, Loader=_NoAliasLoader)  # noqa: S506 - a SafeLoader subclass

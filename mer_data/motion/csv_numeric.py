@@ -29,7 +29,8 @@ import warnings
 import numpy as np
 
 from mer_data.base.errors import MotionFormatError
-from mer_data.base.limits import limit, too_big
+from mer_data.base.limits import check_motion_size, limit, too_big
+from mer_data.base.numbers import parse_number
 
 __all__ = ["parse_numeric_csv", "exact_parse"]
 
@@ -53,6 +54,8 @@ def parse_numeric_csv(data: bytes, ncols: int, *, path: str = "<bytes>", what: s
     very end are ignored; Windows line ends and a UTF-8 byte-order mark are accepted. A line longer
     than ``MER_MAX_CSV_LINE_BYTES`` (:mod:`mer_data.base.limits`) is refused with its number.
     """
+    check_motion_size(data.count(b"\n") + 1, ncols, what="the CSV's table (rows x columns)", error=MotionFormatError,
+                      path=path)  # fmt: skip
     if data.startswith(_BOM):  # spreadsheet programs and Windows editors write one
         data = data[len(_BOM) :]
     elif data.startswith(_WIDE_BOMS) or b"\0" in data[:64]:
@@ -173,16 +176,18 @@ def exact_parse(
             )
         for j, cell in enumerate(cells, start=1):
             text = cell.decode("utf-8", "replace").strip()
-            try:
-                v = float(text)
-            except ValueError:
+            v = parse_number(text)  # strict: Python's float would read 1_0 and full-width digits
+            if v is None and text.lower().lstrip("+-") in ("nan", "inf", "infinity"):
+                v = math.nan
+            if v is None:
                 raise MotionFormatError(
                     f"non-numeric cell {text!r} in column {j}",
                     path=path,
                     line=i,
                     element=f"column {j}",
-                    fix="the file must be headerless numbers only; remove headers or stray text",
-                ) from None
+                    fix="the file must be headerless decimal numbers only (no 1_0, no non-ASCII digits); "
+                    "remove headers or stray text",
+                )
             if not math.isfinite(v):
                 raise MotionFormatError(
                     f"non-finite value {text!r} in column {j}",

@@ -16,6 +16,8 @@ import math
 import numpy as np
 import torch
 
+from mer_data.base.errors import MotionFormatError
+from mer_data.base.limits import check_motion_size, check_upsampling
 from mer_data.kinematics.rotations import quat_slerp
 
 from .lafan1 import Motion
@@ -37,13 +39,22 @@ def output_times(num_frames: int, fps_in: float, fps_out: float) -> np.ndarray:
     return np.minimum(u, num_frames - 1)
 
 
-def resample(motion: Motion, fps_out: float = 30.0) -> Motion:
-    """``motion`` at ``fps_out`` [Hz] (see module docstring); the same object if already there."""
+def resample(motion: Motion, fps_out: float = 30.0, *, path=None) -> Motion:
+    """``motion`` at ``fps_out`` [Hz] (see module docstring); the same object if already there.
+
+    What it would produce is bounded before anything is allocated: at most ``MER_MAX_UPSAMPLING``
+    times the motion's frames, and ``MER_MAX_MOTION_VALUES`` numbers (:mod:`mer_data.base.limits`);
+    past either, :class:`MotionFormatError` naming ``path`` (the motion's file, for the message).
+    """
     if fps_out <= 0:
         raise ValueError(f"fps_out must be positive, got {fps_out}")
     if motion.fps == fps_out:
         return motion
     F = motion.num_frames
+    check_upsampling(motion.fps, fps_out, error=MotionFormatError, path=path)
+    n_out = int(math.floor((F - 1) * fps_out / motion.fps + _SNAP)) + 1 if F > 0 else 0
+    check_motion_size(n_out, 7 + motion.joints.shape[1], what=f"the motion resampled to {fps_out:g} Hz",
+                      error=MotionFormatError, path=path)  # fmt: skip
     u = output_times(F, motion.fps, fps_out)
     i0 = np.minimum(np.floor(u).astype(np.int64), max(F - 2, 0))
     w = u - i0

@@ -73,11 +73,9 @@ class SourceMotion:
 def load_bvh_keypoints(path: str | Path) -> dict[str, str]:
     """Key point -> BVH joint name overrides from a YAML or JSON file (the mapping itself, or under
     ``keypoints:``); partial is fine. Raises MerError naming the file and the entry at fault."""
-    import json
-
     import yaml
 
-    from mer_data.base.safe_io import decode_utf8, read_regular_file, safe_yaml_load
+    from mer_data.base.safe_io import decode_utf8, read_regular_file, safe_yaml_load, strict_json_loads
     from mer_data.skeleton import KEYPOINTS
 
     path = Path(path)
@@ -85,7 +83,7 @@ def load_bvh_keypoints(path: str | Path) -> dict[str, str]:
     text = decode_utf8(read_regular_file(path, MerError, "MER_MAX_CARD_BYTES", fix="check the path given to --bvh-keypoints"),
                        path, MerError)  # fmt: skip
     try:
-        data = json.loads(text) if path.suffix == ".json" else safe_yaml_load(text)
+        data = strict_json_loads(text) if path.suffix == ".json" else safe_yaml_load(text)
     except (ValueError, yaml.YAMLError, RecursionError) as exc:
         raise MerError(f"cannot parse the key point file: {str(exc)[:300]}", path=path, fix=fix) from None
     if isinstance(data, dict) and isinstance(data.get("keypoints"), dict):
@@ -147,7 +145,7 @@ def read_source(path: str | Path, source: Any, *, fps: float = SOURCE_FPS, bvh: 
                        path=path, fix="give a .bvh file for --source bvh, or the robot of the CSV as --source")  # fmt: skip
     motion = read_lafan1_csv(path, source, fps=fps)
     if motion.fps != SOURCE_FPS:
-        motion = resample(motion, SOURCE_FPS)
+        motion = resample(motion, SOURCE_FPS, path=path)
     return SourceMotion(source.skeleton, motion, "csv")
 
 
@@ -179,6 +177,6 @@ def _read_bvh(path: str | Path, opts: BvhOptions) -> SourceMotion:
     skel = human_source_skeleton(clip, opts.keypoints)
     motion = bvh_motion(clip, skel)
     if motion.fps != SOURCE_FPS:
-        motion = resample(motion, SOURCE_FPS)
+        motion = resample(motion, SOURCE_FPS, path=path)
     notes = (*clip.notes, "zero pose: the clip's most neutral standing frame")
     return SourceMotion(skel, motion, "bvh", notes)

@@ -1,6 +1,9 @@
 """Robots: a robot description in, a registered robot (card + URDF + :class:`~mer_data.skeleton.Skeleton`) out.
 
 * :mod:`.urdf` (strict, safe URDF loading) and :mod:`.urdf_checks` (structural checks with file and line);
+* :mod:`.mjcf` (an MJCF's tree), read by :mod:`.mjcf_xml` (includes, files confined to the model's
+  folder, expansion counted) and compiled by :mod:`.mjcf_compile` (MuJoCo);
+* :mod:`.mesh_io` - every mesh file read with trimesh: size-capped, never an archive;
 * :mod:`.card` - the robot card (YAML beside the URDF: key points, CSV layout);
 * :mod:`.builder` - URDF + card -> skeleton graph;
 * :mod:`.keypoints` and :mod:`.keypoint_body` - proposing the 14 key points of an unknown robot;

@@ -5,6 +5,8 @@ MuJoCo's own compiler reads the model (``mujoco.MjSpec``: ``<include>``, default
 tree is built from the **compiled** model (``body_pos``, ``body_quat``, ``jnt_pos``, ``jnt_axis``,
 ``jnt_range``, ``jnt_limited``, ``qpos0``), so the result is a :class:`~mer_data.robots.urdf.UrdfModel`
 that the skeleton builder, key-point proposal, collision shapes and the registry use unchanged.
+Before MuJoCo sees it, the XML is read by :mod:`.mjcf_xml` (every file confined to the model's
+folder, the expansion of ``<replicate>``/``<flexcomp>`` counted) and compiled by :mod:`.mjcf_compile`.
 
 Conventions (docs/robots.md §MJCF):
 
@@ -31,32 +33,27 @@ Conventions (docs/robots.md §MJCF):
   MuJoCo's (half extents, half lengths) turned into the URDF entries' (full box sizes, capsule
   and cylinder lengths); meshes carry MuJoCo's compiled vertices (``mesh_vert``, scale and mesh
   frame applied), ellipsoids points on their surface.
-- **missing files**: mesh files that are not there (or not regular files, or over 64 MB) are
+- **missing files**: mesh files that are not there (or not regular files, or over ``MER_MAX_MESH_BYTES``) are
   dropped with the geoms that use them, and the bodies that lost geometry are named in a warning
   (their collision falls back to fitted capsules). Textures and skins are never read.
 """
 
 from __future__ import annotations
 
-import io
 import logging
 import math
-import os
-import re
-import stat
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING
 
 import numpy as np
-from lxml import etree
 
 from mer_data.base.errors import KinematicTreeError, MalformedURDFError, UnsupportedJointError
 from mer_data.base.limits import MAX_LENGTH_M, limit, too_big
-from mer_data.base.safe_io import read_regular_file
 
+from .mjcf_compile import CompiledMjcf, compile_mjcf
+from .mjcf_xml import description_format, expand_includes, registry_copy
 from .urdf import UrdfJoint, UrdfModel, load_urdf
-from .urdf_checks import CheckedJoint, _check_depth, _check_unsafe, check_size, check_tree
+from .urdf_checks import CheckedJoint, check_tree
 
 if TYPE_CHECKING:  # pragma: no cover
     import mujoco
@@ -68,275 +65,12 @@ __all__ = [
     "compile_mjcf",
     "description_format",
     "expand_includes",
+    "registry_copy",
     "load_description",
     "load_mjcf",
     "mjcf_tree",
 ]
 
-MAX_INCLUDE_DEPTH = 16
-MAX_ASSET_BYTES = 64 * 2**20  # a mesh file larger than this is not read (as shapes.MAX_MESH_BYTES)
-_FIX_MJCF = "check that MuJoCo loads it: python -c \"import mujoco; mujoco.MjModel.from_xml_path('FILE')\""
-_OPEN_ERROR = re.compile(r"[Ee]rror opening file '([^']*)'")
-
-
-# ---- reading the XML safely, with <include>s expanded ---------------------------------------------------
-def _read_xml(path: Path, what: str, budget: list[int] | None = None) -> etree._Element:
-    """A ``<mujoco>`` document: regular file, size and line limits, no DTD/entities, depth limit.
-
-    ``budget``: bytes left for the main file and all its includes together (one file included many
-    times counts each time, so nested includes cannot multiply past ``MER_MAX_URDF_BYTES``).
-    """
-    data = read_regular_file(path, MalformedURDFError, "MER_MAX_URDF_BYTES", fix=f"check the path of the {what}")
-    check_size(data, str(path))
-    if budget is not None:
-        budget[0] -= len(data)
-        if budget[0] < 0:
-            msg, fix = too_big("MER_MAX_URDF_BYTES", limit("MER_MAX_URDF_BYTES") - budget[0])
-            raise MalformedURDFError(f"{msg} (the model with its <include> files, each counted every time it is included)",
-                                     path=path, fix=fix)  # fmt: skip
-    _check_unsafe(data, str(path))
-    parser = etree.XMLParser(resolve_entities=False, no_network=True, load_dtd=False, huge_tree=False)
-    try:
-        root = etree.fromstring(data, parser)
-    except etree.XMLSyntaxError as exc:
-        raise MalformedURDFError(f"not well-formed XML: {exc.msg}", path=path, line=exc.lineno,
-                                 fix="repair the XML (an unclosed tag or stray character is the usual cause)") from None  # fmt: skip
-    except ValueError as exc:
-        raise MalformedURDFError(f"cannot parse the XML: {exc}", path=path, fix="save the model as UTF-8 XML") from None
-    docinfo = root.getroottree().docinfo
-    if docinfo.doctype or docinfo.internalDTD is not None or docinfo.externalDTD is not None:
-        raise MalformedURDFError("the file declares a DOCTYPE; mer never resolves DTDs", path=path, line=1,
-                                 fix="remove the DOCTYPE")  # fmt: skip
-    if root.tag != "mujoco":
-        hint = "this is a URDF: register it with --urdf" if root.tag == "robot" else "an MJCF's top element is <mujoco>"
-        raise MalformedURDFError(f"the root element is <{root.tag}>, not <mujoco>", path=path, line=root.sourceline, fix=hint)
-    _check_depth(root, str(path))
-    return root
-
-
-def _expand(root: etree._Element, path: Path, main_dir: Path, stack: tuple[Path, ...], budget: list[int]) -> None:
-    """Replace every ``<include file>`` under ``root`` by the children of the included ``<mujoco>``
-    (MuJoCo's rule: file names relative to the main model's folder), recursively, in place."""
-    for inc in list(root.iter("include")):
-        name = inc.get("file")
-        if not name:
-            raise MalformedURDFError("<include> without file=", path=path, line=inc.sourceline, fix="name the file to include")
-        target = Path(name) if Path(name).is_absolute() else main_dir / name
-        resolved = target.resolve()
-        if resolved in stack:
-            raise MalformedURDFError(f"<include file={name!r}> includes itself (through {len(stack)} file(s))",
-                                     path=path, line=inc.sourceline, fix="remove the circular <include>")  # fmt: skip
-        if len(stack) > MAX_INCLUDE_DEPTH:
-            raise MalformedURDFError(f"<include> nested deeper than {MAX_INCLUDE_DEPTH} files", path=path,
-                                     line=inc.sourceline, fix="flatten the includes")  # fmt: skip
-        if not target.exists():
-            raise MalformedURDFError(f"<include file={name!r}>: {target} does not exist", path=path, line=inc.sourceline,
-                                     fix=f"include files are found relative to the main model's folder ({main_dir})")  # fmt: skip
-        sub = _read_xml(target, f"<include file={name!r}> (relative to the main model's folder {main_dir})", budget)
-        _expand(sub, target, main_dir, (*stack, resolved), budget)
-        parent = inc.getparent()
-        at = parent.index(inc)
-        tail = inc.tail
-        kids = [c for c in sub]
-        parent[at : at + 1] = kids
-        if kids:
-            kids[-1].tail = (kids[-1].tail or "") + (tail or "")
-
-
-def _source_lines(root: etree._Element) -> dict[tuple[str, str], int]:
-    """(tag, name) → line in the main file, for named bodies, joints and sites."""
-    out: dict[tuple[str, str], int] = {}
-    for tag in ("body", "joint", "freejoint", "site"):
-        for el in root.iter(tag):
-            name = el.get("name")
-            if name and (tag, name) not in out:
-                out["joint" if tag == "freejoint" else tag, name] = el.sourceline or 0
-    return out
-
-
-def _expanded(path: Path) -> tuple[etree._Element, dict[tuple[str, str], int]]:
-    """The main file's tree with its includes expanded, and the source lines of its own elements."""
-    budget = [limit("MER_MAX_URDF_BYTES")]
-    root = _read_xml(path, "MJCF given", budget)
-    lines = _source_lines(root)
-    _expand(root, path, path.parent, (path.resolve(),), budget)
-    _check_depth(root, str(path))
-    return root, lines
-
-
-def expand_includes(path: str | Path) -> str:
-    """The MJCF text of ``path`` with every ``<include>`` replaced by what it includes (numbers and
-    comments verbatim): a single file, what registration stores. Raises :class:`MalformedURDFError`."""
-    return etree.tostring(_expanded(Path(path))[0], encoding="unicode")
-
-
-def description_format(path: str | Path) -> Literal["urdf", "mjcf"]:
-    """``mjcf`` when the file's root element is ``<mujoco>``, else ``urdf`` (also for files that are
-    not XML at all: the URDF reader then says what is wrong). Reads the file (a regular file only)."""
-    data = read_regular_file(Path(path), MalformedURDFError, "MER_MAX_URDF_BYTES", fix="check the path of the robot description")
-    try:
-        for _, el in etree.iterparse(io.BytesIO(data), events=("start",), resolve_entities=False, no_network=True,
-                                     load_dtd=False, huge_tree=False):  # fmt: skip
-            return "mjcf" if el.tag == "mujoco" else "urdf"
-    except (etree.XMLSyntaxError, ValueError):
-        pass
-    return "urdf"
-
-
-# ---- compiling with MuJoCo --------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class CompiledMjcf:
-    """A model compiled by MuJoCo, and what had to be left out.
-
-    Attributes:
-        model: the ``mujoco.MjModel`` (textures and skins removed; unreadable meshes and their geoms dropped).
-        path: the main file.
-        lines: (tag, name) → line in the main file, for messages.
-        lost: body → the meshes of its colliding geoms that were dropped (its link is then listed as
-            missing by :func:`~mer_data.robots.shapes.shapes_from_urdf`: fitted capsules).
-        warnings: one sentence each (missing mesh files, the bodies concerned).
-    """
-
-    model: "mujoco.MjModel"
-    path: Path
-    lines: dict[tuple[str, str], int] = field(default_factory=dict)
-    lost: dict[str, tuple[str, ...]] = field(default_factory=dict)
-    warnings: tuple[str, ...] = ()
-
-
-def _asset_file(spec, name: str) -> Path:
-    """Where MuJoCo looks for a mesh file: ``meshdir`` (relative to the model's folder) / file."""
-    p = Path(Path(name).name if spec.strippath else name)
-    if p.is_absolute():
-        return p
-    d = Path(spec.meshdir or "")
-    return (d if d.is_absolute() else Path(spec.modelfiledir) / d) / p
-
-
-def _asset_problem(p: Path) -> str | None:
-    """Why a mesh file cannot be read (None if it can): absent, not a regular file, too large."""
-    try:
-        st = p.stat()
-    except OSError:
-        return "missing"
-    if not stat.S_ISREG(st.st_mode):
-        return "not a regular file"
-    if st.st_size > MAX_ASSET_BYTES:
-        return f"larger than {MAX_ASSET_BYTES >> 20} MB"
-    return None
-
-
-def _some(names: list[str], n: int = 8) -> str:
-    """At most ``n`` names, then how many more."""
-    return ", ".join(names[:n]) + (f" and {len(names) - n} more" if len(names) > n else "")
-
-
-def _collides(g, group_mode: bool) -> bool:
-    return int(g.group) == 3 if group_mode else bool(int(g.contype) or int(g.conaffinity))
-
-
-def compile_mjcf(path: str | Path, *, geometry: bool = True) -> CompiledMjcf:
-    """Compile an MJCF with MuJoCo, leaving out what cannot be read.
-
-    Args:
-        path: the main ``.xml`` (``<include>`` files are read relative to its folder).
-        geometry: False drops every mesh (and mesh geom) unread: kinematics only, no warnings
-            (the registry's reload; collision shapes are in the robot's ``collision.json``).
-
-    Raises:
-        MalformedURDFError: the file cannot be read or MuJoCo refuses it (its message, and the fix).
-    """
-    import mujoco
-
-    path = Path(path)
-    root, lines = _expanded(path)
-    text = etree.tostring(root, encoding="unicode")
-    try:
-        spec = mujoco.MjSpec.from_string(text)
-    except Exception as exc:  # noqa: BLE001 - MuJoCo's parser error, reported as ours
-        raise MalformedURDFError(f"MuJoCo cannot parse the MJCF: {exc}", path=path, fix=_FIX_MJCF.replace("FILE", str(path))) from None
-    spec.modelfiledir = str(path.parent) + os.sep
-    spec.compiler.fusestatic = False  # keep bodies without joints: they are links (frames, sites)
-    spec.compiler.alignfree = False  # keep the root body's frame where the file puts it
-    spec.compiler.boundmass = max(float(spec.compiler.boundmass), 1e-6)  # bodies that lose all geoms still compile
-    spec.compiler.boundinertia = max(float(spec.compiler.boundinertia), 1e-12)
-
-    # never read: textures and skins (visual only), height fields (terrain, not a robot part)
-    for t in list(spec.textures):
-        spec.delete(t)
-    for mat in spec.materials:
-        mat.textures = [""] * len(mat.textures)
-    for s in list(spec.skins):
-        spec.delete(s)
-    robot_geoms = [g for g in spec.geoms if g.parent is not None and g.parent.name != "world"]  # not the floor
-    group_mode = not any(_collides(g, False) for g in robot_geoms)
-    hfields = {h.name for h in spec.hfields}
-    for g in list(spec.geoms):
-        if g.type == mujoco.mjtGeom.mjGEOM_HFIELD or (g.hfieldname and g.hfieldname in hfields):
-            spec.delete(g)
-    for h in list(spec.hfields):
-        spec.delete(h)
-
-    drop: dict[str, tuple[str, str]] = {}  # mesh name -> (file, why it cannot be read)
-    for mesh in spec.meshes:
-        if not geometry:
-            drop[mesh.name] = ("", "")
-        elif mesh.file:
-            why = _asset_problem(_asset_file(spec, mesh.file))
-            if why:
-                drop[mesh.name] = (mesh.file, why)
-    lost: dict[str, list[str]] = {}
-    visual: dict[str, list[str]] = {}
-    warnings: list[str] = []
-
-    def drop_meshes(names: dict[str, tuple[str, str]]) -> None:
-        for g in list(spec.geoms):
-            if g.type == mujoco.mjtGeom.mjGEOM_MESH and g.meshname in names:
-                body = g.parent.name or f"body{g.parent.id}"
-                (lost if _collides(g, group_mode) else visual).setdefault(body, []).append(g.meshname)
-                spec.delete(g)
-        for mesh in list(spec.meshes):
-            if mesh.name in names:
-                spec.delete(mesh)
-
-    drop_meshes(drop)
-    for _ in range(len(spec.meshes) + 1):
-        try:
-            model = spec.compile()
-            break
-        except Exception as exc:  # noqa: BLE001 - MuJoCo's compiler error, reported as ours
-            msg = str(exc).replace("Error: ", "").strip()
-            m = _OPEN_ERROR.search(msg)
-            hit = {}
-            if m:
-                hit = {me.name: (me.file, "could not be opened") for me in spec.meshes if me.file and m.group(1).endswith(me.file)}
-            else:  # a mesh MuJoCo could not read (corrupt, empty, no volume): name it by its name or file
-                hit = {me.name: (me.file or me.name, f"refused by MuJoCo ({msg.splitlines()[0]})") for me in spec.meshes
-                       if f"'{me.name}'" in msg or (me.file and me.file in msg)}  # fmt: skip
-            if not hit or not geometry:
-                raise MalformedURDFError(f"MuJoCo's compiler refused the model: {msg}", path=path,
-                                         fix=_FIX_MJCF.replace("FILE", str(path))) from None  # fmt: skip
-            drop.update(hit)
-            drop_meshes(hit)
-    else:  # pragma: no cover - every mesh dropped and it still fails: raised above
-        raise MalformedURDFError("MuJoCo's compiler refused the model", path=path)
-    if geometry and drop:
-        why: dict[str, list[str]] = {}
-        for file, reason in drop.values():
-            why.setdefault(reason, []).append(file)
-        listed = "; ".join(f"{reason}: {_some(sorted(files))}" for reason, files in why.items())
-        warnings.append(f"{path}: {len(drop)} mesh file(s) could not be read ({listed}); put them where the model's "
-                        f"meshdir points ({_asset_file(spec, 'x').parent}) to use them")  # fmt: skip
-        if lost:
-            warnings.append(f"{path}: bodies that lost collision geometry (they get capsules fitted along their links): "
-                            f"{_some(sorted(lost))}")  # fmt: skip
-        only_visual = sorted(set(visual) - set(lost))
-        if only_visual:
-            warnings.append(f"{path}: bodies that lost visual geometry only (their collision geometry is unaffected): "
-                            f"{_some(only_visual)}")  # fmt: skip
-        for w in warnings:
-            log.warning("%s", w)
-    return CompiledMjcf(model, path, lines, {k: tuple(v) for k, v in lost.items()}, tuple(warnings))
 
 
 # ---- the compiled model as a tree of links and joints -------------------------------------------------------

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import re
 from dataclasses import dataclass, field
@@ -14,13 +13,13 @@ import numpy as np
 import yaml
 
 from mer_data.base.errors import RobotCardError
-from mer_data.base.safe_io import decode_utf8, read_regular_file, safe_yaml_load
+from mer_data.base.safe_io import decode_utf8, read_regular_file, safe_yaml_load, strict_json_loads
 from mer_data.skeleton import KEYPOINTS, Skeleton
 
 from .builder import build_skeleton
 from .card import DEFAULT_BODY_PARTS, KeypointSpec, RobotCard, parse_keypoints
 from .keypoints import KeypointProposal, propose_robot
-from .mjcf import description_format, expand_includes, load_mjcf
+from .mjcf import description_format, load_mjcf, registry_copy
 from .registry import CARD_FILE, Robot, validate_robot_name, write_robot
 from .shapes import COLLISION_FILE, CollisionFile, dump_collision, shapes_from_urdf
 from .urdf import UrdfModel, load_urdf
@@ -114,7 +113,7 @@ def load_keypoints_file(path: str | Path) -> dict[str, KeypointSpec | None]:
     raw = read_regular_file(path, RobotCardError, "MER_MAX_CARD_BYTES", fix="check the path given to --keypoints")
     text = decode_utf8(raw, path, RobotCardError)
     try:
-        data = json.loads(text) if path.suffix == ".json" else safe_yaml_load(text)
+        data = strict_json_loads(text) if path.suffix == ".json" else safe_yaml_load(text)
     except (ValueError, yaml.YAMLError, RecursionError) as exc:
         raise RobotCardError(f"cannot parse the key point file: {str(exc)[:300]}", path=path) from None
     if isinstance(data, dict) and "keypoints" in data:
@@ -211,10 +210,10 @@ def register_robot(
         notes.append(f"{urdf_path.name} is {'an MJCF model (<mujoco> root)' if fmt == 'mjcf' else 'a URDF (not <mujoco>)'}, "
                      f"given as --{expect}: read as {fmt.upper()}")  # fmt: skip
         log.info("%s", notes[-1])
-    stored = None
+    stored, extra = None, {}
     if fmt == "mjcf":
         urdf = load_mjcf(urdf_path)
-        stored = expand_includes(urdf_path)  # one self-contained file in the registry
+        stored, extra = registry_copy(urdf_path)  # self-contained: includes expanded, sub-models beside it
     else:
         urdf = load_urdf(urdf_path)
     kind = "MJCF" if fmt == "mjcf" else "URDF"
@@ -261,7 +260,6 @@ def register_robot(
             f"{', ...' if len(untold) > 6 else ''}): those bodies get capsules fitted along the links "
             f"(put the meshes where the {kind} points, {where}, and register again with --force)"
         )
-    extra = {}
     if shapes.links:
         shapes = CollisionFile(name, shapes.links, f"registered from {urdf_path.name}: primitives as in the {kind}, meshes as "
                                f"convex hulls (at most 48 vertices, worst error {1000 * max(errors.values(), default=0.0):.1f} mm)",

@@ -281,7 +281,7 @@ def shapes_from_urdf(urdf: Any, *, load_meshes: bool = True, max_vertices: int =
                     pts = None if c["vertices"] is None or not load_meshes else _solid(np.asarray(c["vertices"], np.float64))
                 else:
                     f = mesh_file(c["filename"], urdf_dir) if load_meshes else None
-                    pts = _mesh_points(f) if f is not None else None
+                    pts = _mesh_points(f, f"<collision> mesh of link '{link}'") if f is not None else None
                 if pts is None:
                     if link not in missing:
                         missing.append(link)
@@ -295,9 +295,6 @@ def shapes_from_urdf(urdf: Any, *, load_meshes: bool = True, max_vertices: int =
     return CollisionFile(urdf.name, {k: tuple(v) for k, v in links.items()}, missing=tuple(missing)), errors
 
 
-MAX_MESH_BYTES = 64 * 2**20
-
-
 def _solid(v: np.ndarray) -> np.ndarray | None:
     """``v`` (V, 3) if it spans a volume (at least 4 finite points, not flat), else None."""
     if len(v) < 4 or not np.isfinite(v).all() or np.linalg.matrix_rank(v - v.mean(0), tol=1e-9) < 3:
@@ -305,18 +302,20 @@ def _solid(v: np.ndarray) -> np.ndarray | None:
     return v
 
 
-def _mesh_points(path: Path) -> np.ndarray | None:
-    """The vertices of a mesh file (STL, OBJ, DAE, ... as trimesh reads them), or None (logged)."""
-    try:
-        if path.stat().st_size > MAX_MESH_BYTES:
-            log.warning("mesh %s is larger than %d MB: not read", path, MAX_MESH_BYTES >> 20)
-            return None
-        import trimesh
+def _mesh_points(path: Path, element: str | None = None) -> np.ndarray | None:
+    """The vertices of a mesh file (:func:`~mer_data.robots.mesh_io.read_mesh`), or None (logged).
 
-        mesh = trimesh.load(str(path), force="mesh", process=False)
-        v = np.asarray(mesh.vertices, np.float64)
+    Raises:
+        MeshArchiveError: the file is a compressed archive (never unpacked).
+    """
+    from .mesh_io import MeshArchiveError, read_mesh
+
+    try:
+        v = read_mesh(path)[0]
+    except MeshArchiveError as exc:
+        raise MeshArchiveError(exc.message, path=exc.path, element=element, fix=exc.fix) from None
     except Exception as exc:  # noqa: BLE001 - an unreadable mesh falls back to fitted capsules
-        log.warning("mesh %s could not be read (%s: %s)", path, type(exc).__name__, exc)
+        log.warning("mesh %s could not be read (%s: %s)", path, type(exc).__name__, str(exc).splitlines()[0][:300])
         return None
     if len(v) < 4 or not np.isfinite(v).all() or np.linalg.matrix_rank(v - v.mean(0), tol=1e-9) < 3:
         log.warning("mesh %s has no volume: not used", path)

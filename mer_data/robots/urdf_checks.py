@@ -21,6 +21,7 @@ from mer_data.base.errors import (
     UnsupportedJointError,
 )
 from mer_data.base.limits import MAX_LENGTH_M, MAX_NUMBER, limit, too_big
+from mer_data.base.numbers import parse_number
 
 __all__ = [
     "JOINT_TYPES",
@@ -59,16 +60,15 @@ def _floats(
     if text is None:
         raise MalformedURDFError(f"missing {what}", path=path, line=line, element=element)
     parts = text.split()
-    try:
-        vals = [float(p) for p in parts]
-    except ValueError:
+    vals = [parse_number(p) for p in parts]
+    if any(v is None for v in vals):
         raise MalformedURDFError(
             f"{what}={text!r} is not {n} numbers",
             path=path,
             line=line,
             element=element,
-            fix=f"write {what} as {n} space-separated numbers",
-        ) from None
+            fix=f"write {what} as {n} space-separated decimal numbers (no 1_0, no non-ASCII digits, no nan/inf)",
+        )
     if len(vals) != n or not all(math.isfinite(v) for v in vals):
         raise MalformedURDFError(
             f"{what}={text!r} must be {n} finite numbers",
@@ -156,6 +156,30 @@ def _check_depth(root, path: str) -> None:
             raise MalformedURDFError(msg, path=path, line=el.sourceline, element=f"<{el.tag}>", fix=fix)
 
 
+#: Attributes of URDF elements that hold numbers (what yourdfpy reads with Python's ``float``).
+_NUMERIC = {"origin": ("xyz", "rpy"), "axis": ("xyz",), "limit": ("lower", "upper", "effort", "velocity"),
+            "mimic": ("multiplier", "offset"), "box": ("size",), "sphere": ("radius",), "cylinder": ("radius", "length"),
+            "mesh": ("scale",), "mass": ("value",), "inertia": ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"),
+            "dynamics": ("damping", "friction"), "safety_controller": ("soft_lower_limit", "soft_upper_limit")}  # fmt: skip
+
+
+def _check_numbers(root, path: str) -> None:
+    """Every numeric attribute a strict decimal number (:mod:`mer_data.base.numbers`): Python's
+    ``float`` would read ``1_0`` as 10 and full-width digits as digits."""
+    for el in root.iter(*_NUMERIC):
+        for attr in _NUMERIC[el.tag]:
+            text = el.get(attr)
+            if text is None:
+                continue
+            bad = next((p for p in text.split() if parse_number(p) is None), None if text.split() else text)
+            if bad is not None:
+                parent = el.getparent()
+                raise MalformedURDFError(f"<{el.tag} {attr}={text[:60]!r}>: {bad[:40]!r} is not a decimal number", path=path,
+                                         line=el.sourceline, element=f"<{parent.tag} name={parent.get('name')!r}>",
+                                         fix="write plain decimal numbers (1.5, -2, 3e-4): no digit separators (1_0), "
+                                             "no non-ASCII digits, no nan/inf")  # fmt: skip
+
+
 def parse_xml(data: bytes, path: str):
     """Parse URDF bytes safely (DTDs and entities refused, size, line length, depth and element
     counts within :mod:`mer_data.base.limits`) → the ``<robot>`` element. Linear in the file."""
@@ -195,6 +219,7 @@ def parse_xml(data: bytes, path: str):
             fix="a URDF's top element must be <robot name=...>",
         )
     _check_depth(root, path)
+    _check_numbers(root, path)
     for tag in ("link", "joint"):
         n = sum(1 for _ in root.iterchildren(tag))
         if n > limit("MER_MAX_URDF_ELEMENTS"):

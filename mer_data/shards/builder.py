@@ -34,7 +34,7 @@ from mer_data.base.errors import MerError, ShardBuildError, ShardFormatError
 from mer_data.base.locks import hold_locks
 from mer_data.skeleton import Skeleton
 
-from .card import write_card
+from .card import refuse_foreign_outputs, write_card
 from .clips import BuildContext, ClipResult, ClipTask, process_clip
 from .config import BuildConfig
 from .hdf5_io import Hdf5Shard, Hdf5ShardWriter
@@ -178,6 +178,7 @@ def build_shards(
     t0 = time.perf_counter()
     cfg, out = config, Path(out)
     plan = plan_build(cfg, out, shard_index)
+    refuse_foreign_outputs(out, "" if shard_index is None else f"-{shard_index:05d}-of-{cfg.num_shards:05d}")
     out.mkdir(parents=True, exist_ok=True)
     names = [p.final.name for p in plan.parts.values()]
     with hold_locks(out, names, ShardBuildError):  # a second build of the same files is refused

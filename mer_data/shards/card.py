@@ -15,12 +15,13 @@ from pathlib import Path
 
 from mer_data.base.atomic import atomic_write
 from mer_data.base.errors import ShardFormatError
+from mer_data.base.outputs import refuse_foreign
 
 from .reader import PathsLike, find_shards, open_shard
 from .schema import FORMAT_NAME, FORMAT_VERSION, ShardMeta
 from .sidecar import META_FILE
 
-__all__ = ["render_card", "write_card", "rebuild_command", "card_data", "LICENSE_ID", "TASK_CATEGORY"]
+__all__ = ["render_card", "write_card", "refuse_foreign_outputs", "OWN_MARKS", "rebuild_command", "card_data", "LICENSE_ID", "TASK_CATEGORY"]
 
 LICENSE_ID = "cc-by-nc-nd-4.0"
 SYNTHETIC_LICENSE_ID = "apache-2.0"
@@ -208,8 +209,25 @@ def render_lafan1_card(metas: list[tuple[Path, ShardMeta, str]], cfg: dict, inpu
     return "\n".join(body)
 
 
+#: Text in every file of these names that mer writes into a shard folder: one without it is someone else's.
+OWN_MARKS = {"README.md": "mer training shards", "mer_meta.json": '"mer-shards-meta"', "build-report*.json": '"build_id"'}
+
+
+def refuse_foreign_outputs(out: str | Path, suffix: str = "") -> None:
+    """Before a build writes into ``out``: its ``README.md``, ``mer_meta.json`` and build report, if
+    present, must be mer's (:data:`OWN_MARKS`); a project's README under ``--out .`` is refused."""
+    out = Path(out)
+    for name, mark in OWN_MARKS.items():
+        refuse_foreign(out / name.replace("*", suffix), mark, what=name.replace("*", suffix),
+                       fix="choose a new or empty --out folder (mer writes README.md, mer_meta.json and build-report.json "
+                           "there), or move the file away")  # fmt: skip
+
+
 def write_card(out: str | Path, *, input_label: str | None = None, dest: str | Path | None = None) -> Path:
-    """Render the card of the shards in folder ``out`` into ``dest`` (default ``out/README.md``), atomically."""
+    """Render the card of the shards in folder ``out`` into ``dest`` (default ``out/README.md``), atomically.
+    A ``dest`` that exists and is not a card mer wrote is refused (:class:`OutputPathError`), not replaced."""
     dest = Path(dest) if dest else Path(out) / "README.md"
+    refuse_foreign(dest, OWN_MARKS["README.md"], what=dest.name,
+                   fix="name another --out file, or move the file away")  # fmt: skip
     text = render_card(out, input_label=input_label)
     return atomic_write(dest, text)

@@ -184,7 +184,7 @@ def process_clip(ctx: BuildContext, task: ClipTask) -> ClipResult:
     record["frames_in"] = motion.num_frames
     if motion.warnings:
         record["warnings"] = list(motion.warnings)
-    motion = resample(motion, cfg.out_fps)
+    motion = resample(motion, cfg.out_fps, path=name)
     record["frames"] = motion.num_frames
     starts = window_starts(motion.num_frames, cfg.window, cfg.stride)
     record["windows"] = int(len(starts))

@@ -85,6 +85,31 @@ def _unknown(parser: argparse.ArgumentParser, extra: list[str]) -> None:
     parser.error(f"unrecognized arguments: {' '.join(extra)}" + ("; " + "; ".join(hints) if hints else ""))
 
 
+#: Options naming an output FILE (every command's); ``--out`` names a folder unless its metavar is FILE.
+_FILE_OUTPUTS = ("output", "npz", "mcap", "plot", "video")
+
+
+def _check_outputs(command: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Refuse unwritable outputs before the job runs (a read-only folder, a file where a folder is
+    wanted): :func:`~mer_data.base.outputs.check_output_dir` / ``check_output_file``."""
+    from mer_data.base.outputs import check_output_dir, check_output_file
+
+    for name in _FILE_OUTPUTS:
+        value = getattr(args, name, None)
+        if isinstance(value, str) and value and value != "-":
+            check_output_file(value, f"--{name}")
+    out = getattr(args, "out", None)
+    if isinstance(out, str) and out and not out.startswith("hf://"):
+        as_file = any(a.dest == "out" and a.metavar == "FILE" for a in command._actions)
+        (check_output_file if as_file else check_output_dir)(out, "--out")
+    if getattr(args, "command", None) == "robots" and getattr(args, "robots_cmd", None) == "export":
+        check_output_file(args.mjcf, "--mjcf")
+    if getattr(args, "command", None) == "robots" and getattr(args, "robots_cmd", None) == "register" and not getattr(args, "dry_run", False):
+        from mer_data.robots.location import robots_dir
+
+        check_output_dir(robots_dir(), "the robot registry (MER_HOME)")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit status (0 ok, 1 refused input, 2 usage, 130 interrupted)."""
     # torch's OpenMP threads spin while they wait; on a shared machine (or beside --workers) they
@@ -106,6 +131,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     for noisy in ("yourdfpy", "trimesh", "urllib3", "httpx", "filelock"):
         logging.getLogger(noisy).setLevel(max(level, logging.ERROR))
     try:
+        _check_outputs(command, args)
         return int(args.func(args) or 0)
     except MerError as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -116,4 +142,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BrokenPipeError:  # `mer robots list | head`
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+    except OSError as exc:  # a write the checks could not foresee (a folder made read-only meanwhile)
+        from mer_data.base.outputs import os_refusal
+
+        refused = os_refusal(exc, exc.filename or "")
+        if refused is None:
+            raise
+        print(f"error: {refused}", file=sys.stderr)
+        return 1
 

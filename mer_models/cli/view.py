@@ -38,6 +38,7 @@ def run(args: argparse.Namespace) -> int:
     from mer_data.motion.sources import is_bvh_source, read_source
     from mer_data.robots.registry import as_robot
     from mer_models.export.viewer import require_viser, serve_motion
+    from mer_models.export.viewer_guard import stop_on_sigterm
 
     require_viser()  # before any reading: the one thing a first try lacks
     from mer_models.export.geometry import robot_meshes
@@ -68,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
                           reference_skeleton=ref_skel, host=args.host, port=args.port, play=not args.paused)  # fmt: skip
     drawn = "its meshes" if meshes.kind == "mesh" else "its collision shapes (no mesh file found; --meshes DIR)"
     print(f"viewing {robot.name} ({motion.num_frames} frames, {drawn}) at {viewer.url}  (Ctrl-C to stop)", flush=True)
+    stop_on_sigterm()  # `kill` ends it as Ctrl-C does: connections closed, exit 0
     try:
         while True:
             time.sleep(3600)

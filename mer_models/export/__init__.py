@@ -6,5 +6,6 @@
 * :mod:`.mjcf` - a robot's MuJoCo model (``mer robots export``); :mod:`.geometry` - what draws a robot per body
   (its visual meshes where they can be read, else its collision shapes: :func:`~.geometry.robot_meshes`);
 * :mod:`.plot` (a PNG film strip), :mod:`.video` (GIF / MP4 side by side, the robot drawn) and
-  :mod:`.viewer` (``mer view``: the robot in the browser, viser).
+  :mod:`.viewer` (``mer view``: the robot in the browser, viser; :mod:`.viewer_guard`: its websocket
+  open to its own page only, SIGTERM as Ctrl-C).
 """

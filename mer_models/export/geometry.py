@@ -30,7 +30,7 @@ import numpy as np
 from mer_data.robots.articulation import Articulation, articulation, urdf_visual_meshes
 from mer_data.robots.link_geometry import fitted_hulls, hull_triangles, link_shapes
 from mer_data.robots.registry import Robot
-from mer_data.robots.shapes import MAX_MESH_BYTES, Shape, mesh_file
+from mer_data.robots.shapes import Shape, mesh_file
 
 log = logging.getLogger(__name__)
 
@@ -162,17 +162,16 @@ def decimate(vertices: np.ndarray, faces: np.ndarray, max_faces: int) -> tuple[n
 
 # ---- visual meshes ----------------------------------------------------------------------------------
 def _read_mesh(path: Path) -> tuple[np.ndarray, np.ndarray] | None:
-    """Vertices and triangles of a mesh file (STL, OBJ, ... as trimesh reads them), or None (logged)."""
-    try:
-        if path.stat().st_size > MAX_MESH_BYTES:
-            log.warning("mesh %s is larger than %d MB: not read", path, MAX_MESH_BYTES >> 20)
-            return None
-        import trimesh
+    """Vertices and triangles of a mesh file (:func:`~mer_data.robots.mesh_io.read_mesh`), or None
+    (logged); an archive is refused (MeshArchiveError), never unpacked."""
+    from mer_data.robots.mesh_io import MeshArchiveError, read_mesh
 
-        m = trimesh.load(str(path), force="mesh", process=False)
-        v, f = np.asarray(m.vertices, np.float64), np.asarray(m.faces, np.int64)
+    try:
+        v, f = read_mesh(path)
+    except MeshArchiveError:
+        raise
     except Exception as exc:  # noqa: BLE001 - an unreadable mesh: the body draws its collision shapes
-        log.warning("mesh %s could not be read (%s: %s)", path, type(exc).__name__, exc)
+        log.warning("mesh %s could not be read (%s: %s)", path, type(exc).__name__, str(exc).splitlines()[0][:300])
         return None
     if len(f) == 0 or not np.isfinite(v).all():
         return None
@@ -229,7 +228,7 @@ def _mjcf_visuals(robot: Robot, art: Articulation, mesh_dir: Path | None) -> tup
             compiler.set("meshdir", str(Path(mesh_dir).resolve()) + os.sep)
             path = Path(tmp) / path.name
             path.write_bytes(etree.tostring(root))
-        compiled = compile_mjcf(path, geometry=True)
+        compiled = compile_mjcf(path, geometry=True, allowed=() if mesh_dir is None else (Path(mesh_dir),))
     missing = [w.replace(str(path), str(robot.urdf_path)) for w in compiled.warnings]
     m = compiled.model
     own = {name: b for b, name in enumerate(art.body_names)}

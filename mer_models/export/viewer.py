@@ -36,6 +36,7 @@ from mer_data.robots.registry import Robot
 from mer_data.skeleton import Skeleton
 
 from .geometry import RobotMeshes, bone_segments
+from .viewer_guard import own_origin_only
 from .writers import TargetMotion, check_motion_finite
 
 log = logging.getLogger(__name__)
@@ -171,7 +172,8 @@ def serve_motion(
         )
     rob_feet = _feet(node_pos, foot_contacts(node_pos, skel, motion.fps), sole_points(skel))
 
-    server = viser.ViserServer(host=host, port=port, label=f"mer: {robot.name}", verbose=False)
+    with own_origin_only(host):  # its websocket answers its own page only (viewer_guard)
+        server = viser.ViserServer(host=host, port=port, label=f"mer: {robot.name}", verbose=False)
     server.gui.configure_theme(control_width="medium", show_share_button=False, brand_color=_UI_RGB)
     scene = server.scene
     scene.set_up_direction("+z")
