@@ -14,7 +14,8 @@ mimic joint (gains, effort limit, armature: :mod:`.mjlab_drive`), joint armature
 friction loss, contact spheres on the soles named ``<side>_foot<k>_collision`` (:mod:`.mjlab_body`;
 the feet's own shapes stay as non-colliding geoms), every other collision geom named
 ``<body>_<k>_collision``, ``<contact><exclude>`` for each parent/child body pair and each pair
-whose geometry touches at the initial pose (found by MuJoCo), an ``imu`` site on the root body with
+whose geometry touches at the initial pose (found by MuJoCo), the root body at the standing
+height (qpos0 on the floor, not in it), an ``imu`` site on the root body with
 the ``imu_ang_vel`` gyro and ``imu_lin_vel`` velocimeter that mjlab's tracking observations read.
 """
 
@@ -143,6 +144,7 @@ def _dress(root: etree._Element, robot: Robot, st: Standing, drives: list[Drive]
         if d.frictionloss:
             je.set("frictionloss", _num(d.frictionloss))
     rootel = els[art.bodies[0].name]
+    rootel.set("pos", _num([0.0, 0.0, st.height]))  # standing at qpos0 (mjlab builds its data there)
     etree.SubElement(rootel, "site", name="imu", pos="0 0 0", size="0.01", group="5")
     act = etree.SubElement(root, "actuator")
     for d in drives:

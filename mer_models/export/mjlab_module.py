@@ -65,7 +65,8 @@ def get_spec() -> mujoco.MjSpec:
 def action_scale() -> dict[str, float]:
     """Per actuator 0.25 x effort limit / stiffness (the rule of mjlab's G1)."""
     out = {{}}
-    for a in get_spec().actuators:
+    spec = get_spec()  # kept alive while its actuators are read
+    for a in spec.actuators:
         out["^" + re.escape(a.name) + "$"] = 0.25 * float(a.forcerange[1]) / float(a.gainprm[0])
     return out
 
