@@ -55,6 +55,27 @@ def main(folder: str, package: str, motion: str, steps: int) -> dict:
     t = int(cmd.time_steps[0])
     now = cmd.body_pos_w[0].cpu().numpy() - env.scene.env_origins[0].cpu().numpy()
     diff["body_pos_w_now"] = float(np.abs(now - z["body_pos_w"][t, idx]).max())
+    env.close()
+    # the play task (no randomisation) with the full joint range: reset puts the robot in the
+    # motion's first frame; mjlab's forward kinematics of the folder's model puts every body where
+    # the npz says
+    play = load_env_cfg(mod.TASK_ID, play=True)
+    play.scene.num_envs = 1
+    play.commands["motion"].motion_file = motion
+    play.commands["motion"].joint_position_range = (0.0, 0.0)
+    play.scene.entities["robot"].articulation.soft_joint_pos_limit_factor = 1.0
+    env = ManagerBasedRlEnv(cfg=play, device="cpu")
+    env.reset()
+    robot = env.scene["robot"]
+    origin = env.scene.env_origins[0].cpu().numpy()
+    pos = robot.data.body_link_pos_w[0].cpu().numpy() - origin
+    quat = robot.data.body_link_quat_w[0].cpu().numpy()
+    qz = z["body_quat_w"][0]
+    kin = {
+        "body_pos": float(np.abs(pos - z["body_pos_w"][0]).max()),
+        "body_quat": float(np.minimum(np.abs(quat - qz).max(-1), np.abs(quat + qz).max(-1)).max()),
+        "joint_pos": float(np.abs(robot.data.joint_pos[0].cpu().numpy() - z["joint_pos"][0]).max()),
+    }
     return {
         "task": mod.TASK_ID,
         "joint_names": list(robot.joint_names),
@@ -68,6 +89,7 @@ def main(folder: str, package: str, motion: str, steps: int) -> dict:
         "fps": [float(z["fps"][0]), str(z["fps"].dtype)],
         "frames": int(z["joint_pos"].shape[0]),
         "diff": diff,
+        "replay": kin,
         "steps": steps_done,
         "time_step": t,
         "finite": finite,

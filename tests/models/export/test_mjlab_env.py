@@ -2,8 +2,11 @@
 --mjlab DIR`` with a mer npz (``--npz-for mjlab``), the folder moved elsewhere, then, in mjlab's
 Python (a separate environment: mjlab pins its own MuJoCo), tests/models/export/mjlab_check.py
 builds the tracking task the folder registers on the CPU, resets it, steps it 100 times with zero
-actions, and reports what the environment read. Robots: Unitree H1 (a URDF) and HighTorque Hi
-registered from its MJCF (../shared/robots-mjcf), with its meshes.
+actions, and reports what the environment read; then its play task (no randomisation), reset to the
+motion's first frame, where mjlab's kinematics of the folder's model must put every body where the
+npz says. Robots: Unitree H1 (a URDF), HighTorque Hi
+registered from its MJCF (../shared/robots-mjcf) with its meshes, and a humanoid built in code with a
+mimic joint, a locked joint and a mesh.
 
 mjlab is found through ``MER_MJLAB_PYTHON`` (its interpreter; docs/trackers.md says how to install
 it), else in this interpreter; without either the test is skipped, saying so. The first run compiles
@@ -21,8 +24,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_mjlab_export import npz_for
+from test_mjlab_export import _toy, npz_for
 
+from mer_data.robots.articulation import articulation
 from mer_data.robots.register import register_robot
 from mer_data.robots.registry import load_robot
 from mer_models.cli import main
@@ -43,19 +47,22 @@ def _mjlab_python() -> str:
     return sys.executable
 
 
-def _robot(name, shared_dir):
+def _robot(name, tmp_path, shared_dir):
     if name == "h1":
         return load_robot("h1"), []
+    if name == "toy":  # built in code: a mimic joint (no actuator), a locked joint, a mesh, massless bodies
+        return _toy(tmp_path), []
     xml = shared_dir / "robots-mjcf" / "gmr_hightorque_hi" / "hi_25dof.xml"
     if not xml.is_file():
         pytest.skip(f"{xml} is absent")
     return register_robot("hi", xml).robot, ["--meshes", str(xml.parent / "meshes")]
 
 
-@pytest.mark.parametrize("name", ["h1", "hi"])
-def test_mjlab_tracking_env_loads_and_steps_the_exported_robot(name, tmp_path, capsys, shared_dir):
+@pytest.mark.parametrize("name", ["h1", "hi", "toy"])
+def test_mjlab_tracking_env_loads_and_steps_the_exported_robot(name, tmp_path, capsys, request):
     python = _mjlab_python()
-    robot, extra = _robot(name, shared_dir)
+    shared_dir = request.getfixturevalue("shared_dir") if name == "hi" else None
+    robot, extra = _robot(name, tmp_path, shared_dir)
     npz = npz_for(robot, tmp_path / f"{name}_walk.npz", frames=60)
     built = tmp_path / "built"
     assert main(["robots", "export", name, "--mjlab", str(built), "--motion", str(npz), *extra]) == 0
@@ -72,11 +79,15 @@ def test_mjlab_tracking_env_loads_and_steps_the_exported_robot(name, tmp_path, c
     line = next((x for x in run.stdout.splitlines() if x.startswith("MJLAB_CHECK ")), None)
     assert run.returncode == 0 and line is not None, run.stderr[-3000:]
     got = json.loads(line[len("MJLAB_CHECK "):])
-    print(f"{name}: {json.dumps({k: got[k] for k in ('task', 'anchor', 'num_actions', 'fps', 'frames', 'diff', 'steps', 'finite', 'seconds')})}")
+    print(f"{name}: {json.dumps({k: got[k] for k in ('task', 'anchor', 'num_actions', 'fps', 'frames', 'diff', 'replay', 'steps', 'finite', 'seconds')})}")
     z = np.load(npz, allow_pickle=False)
     assert got["joint_names"] == list(z["joint_names"]) and got["body_names"] == list(z["body_names"])
-    assert got["num_actions"] == got["num_actuators"] == len(z["joint_names"])  # every joint driven (no mimics here)
+    driven = [j.name for j in articulation(robot).joints if j.mimic is None]  # every joint but the mimic ones
+    assert got["num_actions"] == got["num_actuators"] == len(driven) == len(z["joint_names"]) - (name == "toy")
     assert got["fps"] == [50.0, "float64"] and got["frames"] == z["joint_pos"].shape[0]
     assert len(got["tracked"]) >= 12 and got["tracked"][0] == got["body_names"][0]
     assert max(got["diff"].values()) < 1e-6, got["diff"]  # the reference the env reads is the npz's, body by body
     assert got["steps"] == 100 and got["finite"]
+    # mjlab's own forward kinematics of the folder's model, reset to the motion's first frame: every
+    # body where the npz says (float32)
+    assert got["replay"]["body_pos"] < 1e-5 and got["replay"]["body_quat"] < 1e-5, got["replay"]
