@@ -143,3 +143,19 @@ def test_an_npz_for_another_robot_is_refused_by_name(tmp_path, capsys):
     out = tmp_path / "g1dir"
     assert main(["robots", "export", "g1", "--mjlab", str(out), "--motion", str(npz)]) != 0
     assert "another robot" in capsys.readouterr().err and not out.exists()
+
+
+def test_an_npz_without_names_is_checked_by_its_shapes(tmp_path, caplog):
+    """A tracker's own converter writes no names: its shapes must still fit the robot."""
+    h1, g1 = load_robot("h1"), load_robot("g1")
+    z = dict(np.load(npz_for(h1, tmp_path / "h1.npz"), allow_pickle=False))
+    del z["joint_names"], z["body_names"]
+    np.savez(tmp_path / "bare.npz", **z)
+    assert read_npz(tmp_path / "bare.npz", h1, "mjlab")["joint_pos"].shape[1] == 19
+    assert "no joint_names" in caplog.text
+    with pytest.raises(MerError, match=r"do not fit 'g1' \(29 joints"):
+        read_npz(tmp_path / "bare.npz", g1, "mjlab")
+    del z["body_quat_w"]
+    np.savez(tmp_path / "short.npz", **z)
+    with pytest.raises(MerError, match="no body_quat_w"):
+        read_npz(tmp_path / "short.npz", h1, "mjlab")
