@@ -42,6 +42,8 @@ def _toy(tmp_path, effort="10"):
     r.joint("head_tilt_joint", "revolute", "head_link", "eyes_link", xyz=(0.05, 0, 0.1), axis=(0, 1, 0),
             mimic=("neck_joint", 0.5, 0.1))  # fmt: skip
     text = r.xml().replace('effort="10"', f'effort="{effort}"')
+    text = text.replace('<joint name="left_knee_joint" type="revolute">',
+                        '<joint name="left_knee_joint" type="revolute"><dynamics damping="0.5" friction="0.2"/>')  # fmt: skip
     text = text.replace('<link name="left_forearm_link"/>', '<link name="left_forearm_link"><inertial><origin xyz="0 0 -0.2"/><mass value="10"/>'
                         '<inertia ixx="0.01" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.01"/></inertial><visual><geometry>'
                         '<mesh filename="package://toy/meshes/forearm.stl"/></geometry></visual></link>')  # fmt: skip
@@ -84,6 +86,8 @@ def test_the_folder_is_self_contained_and_its_model_is_what_the_docs_say(tmp_pat
     np.testing.assert_allclose([a.gainprm[0], -a.biasprm[1], -a.biasprm[2]],
                                [arm * NATURAL_FREQ**2, arm * NATURAL_FREQ**2, 2 * DAMPING_RATIO * arm * NATURAL_FREQ], rtol=1e-6)  # fmt: skip
     np.testing.assert_allclose(a.forcerange, [-10, 10])
+    knee = m.jnt_dofadr[m.joint("left_knee_joint").id]
+    np.testing.assert_allclose([m.dof_damping[knee], m.dof_frictionloss[knee]], [0.5, 0.2])  # URDF <dynamics>
     assert not a.ctrllimited
     # standing at qpos0: the sole spheres on the floor, at the corners of the foot boxes, nothing lower
     d = mujoco.MjData(m)
@@ -159,3 +163,25 @@ def test_an_npz_without_names_is_checked_by_its_shapes(tmp_path, caplog):
     np.savez(tmp_path / "short.npz", **z)
     with pytest.raises(MerError, match="no body_quat_w"):
         read_npz(tmp_path / "short.npz", h1, "mjlab")
+
+
+def test_an_mjcf_s_own_drives_are_kept(tmp_path, capsys, shared_dir):
+    """HighTorque Hi's MJCF gives every joint's actuatorfrcrange (21 N m); a <position> actuator and
+    an armature added to one joint are taken as they are, the rest get the rule's gains."""
+    xml = shared_dir / "robots-mjcf" / "gmr_hightorque_hi" / "hi_25dof.xml"
+    if not xml.is_file():
+        pytest.skip(f"{xml} is absent")
+    text = xml.read_text().replace('<joint name="l_calf_joint" ', '<joint name="l_calf_joint" armature="0.02" ')
+    text = text.replace("</mujoco>", '<actuator><position joint="l_calf_joint" kp="55" kv="3" forcelimited="true" '
+                        'forcerange="-30 30"/></actuator></mujoco>')  # fmt: skip
+    (tmp_path / "hi.xml").write_text(text)
+    register_robot("hi", tmp_path / "hi.xml")
+    out = tmp_path / "out"
+    assert main(["robots", "export", "hi", "--mjlab", str(out)]) == 0
+    m = mujoco.MjModel.from_xml_path(str(out / "mer_hi" / "hi.xml"))
+    calf, waist = m.actuator("l_calf_joint"), m.actuator("waist_joint")
+    np.testing.assert_allclose([calf.gainprm[0], -calf.biasprm[2], calf.forcerange[1]], [55, 3, 30])
+    np.testing.assert_allclose(m.dof_armature[m.jnt_dofadr[m.joint("l_calf_joint").id]], 0.02)
+    arm = ARMATURE_PER_SQRT_EFFORT * math.sqrt(21.0)
+    np.testing.assert_allclose([waist.gainprm[0], waist.forcerange[1]], [arm * NATURAL_FREQ**2, 21], rtol=1e-6)
+    assert m.nu == 25
