@@ -18,16 +18,20 @@ feet and their soles, the bodies a tracking task follows.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
 
+from mer_data.base.errors import OutputError
 from mer_data.robots.articulation import Articulation
 from mer_data.robots.registry import Robot
 
 from .geometry import robot_meshes
 
-__all__ = ["SOLE_BAND", "SOLE_RADIUS", "FootSphere", "Standing", "standing"]
+log = logging.getLogger(__name__)
+
+__all__ = ["SOLE_BAND", "SOLE_RADIUS", "FootSphere", "Standing", "standing", "body_of_keypoint"]
 
 #: How far above a foot's lowest point collision geometry counts as sole [m].
 SOLE_BAND = 0.005
@@ -72,7 +76,8 @@ def _world(art: Articulation) -> np.ndarray:
     return out
 
 
-def _body_of_keypoint(robot: Robot, art: Articulation, key: str) -> int | None:
+def body_of_keypoint(robot: Robot, art: Articulation, key: str) -> int | None:
+    """The index of the body that carries key point ``key``'s link (None: the robot has no such key point)."""
     node = robot.skeleton.keypoints.get(key, -1)
     if node is None or node < 0:
         return None
@@ -117,13 +122,14 @@ def standing(robot: Robot, art: Articulation) -> Standing:
         t = world[m.body]
         verts[m.body] = m.vertices @ t[:3, :3].T + t[:3, 3]
     if not verts:
-        raise ValueError(f"{robot.name!r} has no collision geometry to stand on")
+        raise OutputError(f"{robot.name!r} has no collision geometry to stand on", element="mjlab",
+                          fix="give the description collision shapes (`mer robots show` lists them) and register it again")  # fmt: skip
     floor = min(float(v[:, 2].min()) for v in verts.values())
     spheres: list[FootSphere] = []
     soles: dict[int, np.ndarray] = {}
     feet: dict[str, tuple[int, ...]] = {}
     for side in ("left", "right"):
-        ankle = _body_of_keypoint(robot, art, f"{side}_ankle")
+        ankle = body_of_keypoint(robot, art, f"{side}_ankle")
         if ankle is None:
             continue
         bodies = [b for b in _subtree(art, ankle) if b in verts]
@@ -140,13 +146,21 @@ def standing(robot: Robot, art: Articulation) -> Standing:
             for xy in _corners(sole[:, :2], SOLE_RADIUS):
                 p = np.array([xy[0], xy[1], low + SOLE_RADIUS, 1.0])
                 spheres.append(FootSphere(side, b, (inv @ p)[:3]))
-    keys = [_body_of_keypoint(robot, art, k) for k in robot.skeleton.keypoints]
+    if not spheres:
+        log.warning(
+            "%s: no foot found below its ankle key points: the model has no sole contact spheres (edit "
+            "the key points, or add geoms named <side>_foot<k>_collision)",
+            robot.name,
+        )
+    keys = [body_of_keypoint(robot, art, k) for k in robot.skeleton.keypoints]
     tracked = sorted({0, *(b for b in keys if b is not None)})
-    ls, rs = _body_of_keypoint(robot, art, "left_shoulder"), _body_of_keypoint(robot, art, "right_shoulder")
+    ls, rs = body_of_keypoint(robot, art, "left_shoulder"), body_of_keypoint(robot, art, "right_shoulder")
     anchor = 0
     if ls is not None and rs is not None:
         right = set(_ancestors(art, rs))
         anchor = next(b for b in _ancestors(art, ls) if b in right)
     if anchor not in tracked:
         tracked = sorted({*tracked, anchor})
-    return Standing(world, -floor, tuple(spheres), soles, feet, tuple(art.bodies[b].name for b in tracked), art.bodies[anchor].name)
+    return Standing(
+        world, -floor, tuple(spheres), soles, feet, tuple(art.bodies[b].name for b in tracked), art.bodies[anchor].name
+    )

@@ -67,7 +67,9 @@ def given_drives(path: str | Path, source: str) -> dict[str, dict[str, float]]:
     if source == "urdf":
         out = {}
         for name, v in urdf_joint_drives(path).items():
-            out[name] = {k2: v[k] for k, k2 in (("effort", "effort"), ("damping", "damping"), ("friction", "frictionloss")) if k in v}
+            out[name] = {
+                k2: v[k] for k, k2 in (("effort", "effort"), ("damping", "damping"), ("friction", "frictionloss")) if k in v
+            }
         return out
     import mujoco
 
@@ -125,7 +127,9 @@ def _static_effort(art: Articulation, j: int, world: np.ndarray, subtree: list[l
     return max(2 * load * _G * lever, _MIN_EFFORT[0])
 
 
-def joint_drives(art: Articulation, given: dict[str, dict[str, float]], world: np.ndarray, soles: dict[int, np.ndarray]) -> list[Drive]:
+def joint_drives(
+    art: Articulation, given: dict[str, dict[str, float]], world: np.ndarray, soles: dict[int, np.ndarray]
+) -> list[Drive]:
     """A :class:`Drive` per joint of ``art`` that is not a mimic joint, in its order.
 
     Args:

@@ -6,12 +6,10 @@ numbers live in one place: edit the ``<position>`` elements to change them.
 
 from __future__ import annotations
 
-import re
-
 from mer_data.robots.articulation import Articulation
 from mer_data.robots.registry import Robot
 
-from .mjlab_body import Standing, _body_of_keypoint
+from .mjlab_body import Standing, body_of_keypoint
 from .mjlab_drive import Drive
 
 __all__ = ["module_text", "pyproject_text", "readme_text"]
@@ -180,7 +178,7 @@ def module_text(robot: Robot, art: Articulation, st: Standing, init: dict[str, f
     """The package's ``__init__.py``."""
     ends = []
     for key in ("left_ankle", "right_ankle", "left_hand", "right_hand"):
-        b = _body_of_keypoint(robot, art, key)
+        b = body_of_keypoint(robot, art, key)
         if b is not None and art.bodies[b].name in st.tracked and art.bodies[b].name not in ends:
             ends.append(art.bodies[b].name)
     return _MODULE.format(name=robot.name, task=task, pkg=pkg, root=art.bodies[0].name, anchor=st.anchor,

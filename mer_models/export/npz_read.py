@@ -64,7 +64,9 @@ def read_npz(path: str | Path, robot: Robot, tracker: str) -> dict[str, np.ndarr
         if extra or lacking:
             said = []
             if extra:
-                said.append(f"{len(extra)} {what} {robot.name!r} does not have ({', '.join(extra[:5])}{', ...' if len(extra) > 5 else ''})")
+                said.append(
+                    f"{len(extra)} {what} {robot.name!r} does not have ({', '.join(extra[:5])}{', ...' if len(extra) > 5 else ''})"
+                )
             if lacking:
                 said.append(f"none of its {', '.join(lacking[:5])}{', ...' if len(lacking) > 5 else ''}")
             raise MerError(f"the npz was written for another robot: its {key} name {' and '.join(said)}", path=path,

@@ -78,8 +78,10 @@ def test_mjlab_tracking_env_loads_and_steps_the_exported_robot(name, tmp_path, c
                          timeout=900, env=env, cwd=tmp_path)  # fmt: skip
     line = next((x for x in run.stdout.splitlines() if x.startswith("MJLAB_CHECK ")), None)
     assert run.returncode == 0 and line is not None, run.stderr[-3000:]
-    got = json.loads(line[len("MJLAB_CHECK "):])
-    print(f"{name}: {json.dumps({k: got[k] for k in ('task', 'anchor', 'num_actions', 'fps', 'frames', 'diff', 'replay', 'steps', 'finite', 'seconds')})}")
+    got = json.loads(line[len("MJLAB_CHECK ") :])
+    print(
+        f"{name}: {json.dumps({k: got[k] for k in ('task', 'anchor', 'num_actions', 'fps', 'frames', 'diff', 'replay', 'steps', 'finite', 'seconds')})}"
+    )
     z = np.load(npz, allow_pickle=False)
     assert got["joint_names"] == list(z["joint_names"]) and got["body_names"] == list(z["body_names"])
     driven = [j.name for j in articulation(robot).joints if j.mimic is None]  # every joint but the mimic ones

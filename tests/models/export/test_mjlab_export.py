@@ -6,8 +6,8 @@ says); ``read_npz`` refuses another robot's npz by name. mjlab itself: test_mjla
 from __future__ import annotations
 
 import ast
-import re
 import math
+import re
 import shutil
 
 import numpy as np
@@ -122,7 +122,7 @@ def test_the_folder_is_self_contained_and_its_model_is_what_the_docs_say(tmp_pat
 def test_rule_effort_where_the_description_gives_none(tmp_path, capsys):
     """No effort in the URDF: twice the static torque; the forearm's 10 kg load at the elbow is
     visible in the elbow's effort, the knee carries half the robot at the sole."""
-    robot = _toy(tmp_path, effort="0")
+    _toy(tmp_path, effort="0")
     out = tmp_path / "out"
     assert main(["robots", "export", "toy", "--mjlab", str(out)]) == 0
     m = mujoco.MjModel.from_xml_path(str(out / "mer_toy" / "toy.xml"))
