@@ -55,7 +55,7 @@ log = logging.getLogger(__name__)
 
 __all__ = [
     "TRACKERS", "Tracker", "ArticulatedJoint", "ArticulatedBody", "Articulation", "articulation", "build_articulation",
-    "urdf_inertials", "urdf_visual_meshes",
+    "urdf_inertials", "urdf_visual_meshes", "urdf_joint_drives",
 ]  # fmt: skip
 
 Tracker = Literal["mjlab", "beyondmimic"]
@@ -238,6 +238,21 @@ def urdf_inertials(path: str | Path) -> dict[str, tuple[float, np.ndarray, np.nd
         t = np.asarray(i.origin if i.origin is not None else np.eye(4), np.float64)
         inertia = np.asarray(i.inertia if i.inertia is not None else np.zeros((3, 3)), np.float64)
         out[link.name] = (float(i.mass), t[:3, 3].copy(), t[:3, :3] @ inertia @ t[:3, :3].T)
+    return out
+
+
+def urdf_joint_drives(path: str | Path) -> dict[str, dict[str, float]]:
+    """Joint → what a URDF says of its drive: ``effort`` [N m or N] and ``velocity`` [rad/s or m/s]
+    from ``<limit>``, ``damping`` and ``friction`` from ``<dynamics>`` (only the positive, finite ones)."""
+    out: dict[str, dict[str, float]] = {}
+    for j in _yourdfpy_model(path).robot.joints:
+        vals = {}
+        for key, obj, attr in (("effort", j.limit, "effort"), ("velocity", j.limit, "velocity"),
+                               ("damping", j.dynamics, "damping"), ("friction", j.dynamics, "friction")):  # fmt: skip
+            v = getattr(obj, attr, None) if obj is not None else None
+            if v is not None and math.isfinite(float(v)) and float(v) > 0:
+                vals[key] = float(v)
+        out[j.name] = vals
     return out
 
 

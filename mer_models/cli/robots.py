@@ -62,7 +62,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                       "limits, inertia, collision geometry, meshes where their files are there; bodies and joints in "
                       "the order of its npz for mjlab (docs/trackers.md).")
     q.add_argument("name")
-    q.add_argument("--mjcf", required=True, metavar="OUT.xml", help="where to write the MJCF")
+    out = q.add_mutually_exclusive_group(required=True)
+    out.add_argument("--mjcf", metavar="OUT.xml", help="where to write the MJCF")
+    out.add_argument("--mjlab", metavar="DIR", help="write a self-contained mjlab folder here: the MJCF with position "
+                     "actuators, sole contact spheres, contact exclusions and sensors, its meshes and licences, and a "
+                     "Python package with the entity config and a tracking task (docs/trackers.md)")
+    q.add_argument("--motion", action="append", default=[], metavar="NPZ",
+                   help="with --mjlab: an npz for mjlab to copy into the folder (checked: this robot's joints and bodies "
+                   "in mjlab's order); repeat for more")
+    q.add_argument("--meshes", metavar="DIR", help="with --mjlab: a folder with the description's mesh files, besides "
+                   "its own")
+    q.add_argument("--force", action="store_true", help="with --mjlab: replace DIR if it exists")
     q.set_defaults(func=cmd_export)
 
 
@@ -200,11 +210,26 @@ def cmd_keypoints(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    """``mer robots export NAME --mjcf OUT.xml``: the robot's MuJoCo model."""
+    """``mer robots export NAME --mjcf OUT.xml | --mjlab DIR``: the robot's MuJoCo model, or its mjlab folder."""
+    from mer_data.base.errors import MerError
     from mer_data.robots.registry import load_robot
     from mer_models.export.mjcf import write_mjcf
 
     r = load_robot(args.name)
+    if args.mjlab is None:
+        if args.motion or args.meshes or args.force:
+            raise MerError("--motion, --meshes and --force go with --mjlab", fix="add --mjlab DIR, or leave them out")
+    else:
+        from mer_models.export.mjlab import export_mjlab
+
+        e = export_mjlab(r, args.mjlab, mesh_dir=args.meshes, motions=args.motion, replace=args.force)
+        rule = sum(d.source["gains"] == "rule" for d in e.drives)
+        print(f"wrote {e.folder}: {e.xml.name} ({len(e.drives)} position actuators, {rule} with mer's rule gains; "
+              f"{len(e.standing.spheres)} sole spheres; {len(e.excluded)} excluded body pairs), {len(e.meshes)} meshes, "
+              f"licences: {', '.join(e.licences) or 'none found'}, motions: {', '.join(e.motions) or 'none'}")
+        print(f"  mjlab task {e.task!r}: `pip install -e {e.folder}`, then `train {e.task} "
+              f"--env.commands.motion.motion-file MOTION.npz` (the numbers mer chose: {e.package.name}/README.md)")
+        return 0
     path = write_mjcf(args.mjcf, r)
     print(f"wrote {path}: the MuJoCo model of {args.name!r} (bodies and joints in the order of `mer retarget "
           "--npz OUT.npz --npz-for mjlab`)")

@@ -41,7 +41,7 @@ from .geometry import fitted_hulls, link_shapes
 
 log = logging.getLogger(__name__)
 
-__all__ = ["FREE_JOINT", "mjcf_model", "write_mjcf"]
+__all__ = ["FREE_JOINT", "mjcf_tree", "compile_text", "mjcf_model", "write_mjcf"]
 
 #: Name of the root body's free joint (mjlab's G1 calls it so).
 FREE_JOINT = "floating_base_joint"
@@ -90,11 +90,13 @@ def _inertial(body_el: etree._Element, mass: float, com: np.ndarray, inertia: np
     el.set("diaginertia", _num(np.maximum(w, _MIN_INERTIA)))
 
 
-def mjcf_model(robot: Robot) -> str:
-    """The MJCF text of ``robot`` (see the module docstring), compiled by MuJoCo once to check it.
+def mjcf_tree(robot: Robot, *, body_meshes: dict[int, str] | None = None) -> etree._Element:
+    """The ``<mujoco>`` element of ``robot`` (see the module docstring), not yet compiled.
 
-    Raises:
-        OutputError: MuJoCo refuses the model (its message).
+    Args:
+        body_meshes: body index -> a mesh file (path as written in ``file``) that draws the body, in
+            its body frame; given, it replaces the URDF's visual meshes (the self-contained folder of
+            :mod:`~mer_models.export.mjlab` writes one per body, referenced relatively).
     """
     art = articulation(robot)
     if "world" in art.body_names:
@@ -102,7 +104,7 @@ def mjcf_model(robot: Robot) -> str:
                           fix="rename that link in the description and register the robot again")  # fmt: skip
     shapes = link_shapes(robot)
     fitted = fitted_hulls(robot, art, shapes)
-    visuals = urdf_visual_meshes(robot.urdf_path) if art.source == "urdf" else {}
+    visuals = urdf_visual_meshes(robot.urdf_path) if art.source == "urdf" and body_meshes is None else {}
     folder = Path(robot.urdf_path).parent
 
     root = etree.Element("mujoco", model=robot.name)
@@ -162,6 +164,11 @@ def mjcf_model(robot: Robot) -> str:
                 g = etree.SubElement(el, "geom", type="mesh", mesh=name, group="2", contype="0", conaffinity="0")
                 _pose(g, frame @ t)
                 drawn = True
+        if body_meshes is not None and b in body_meshes:
+            meshes += 1
+            etree.SubElement(asset, "mesh", name=f"visual_{meshes}", file=body_meshes[b])
+            etree.SubElement(el, "geom", type="mesh", mesh=f"visual_{meshes}", group="2", contype="0", conaffinity="0")
+            drawn = True
         if not collision:
             for v in fitted.get(b, []):
                 meshes += 1
@@ -182,14 +189,35 @@ def mjcf_model(robot: Robot) -> str:
                     ", ".join(Path(u).name for u in unused[:4]), ", ..." if len(unused) > 4 else "")  # fmt: skip
     if not len(asset):
         root.remove(asset)
-    text = etree.tostring(root, pretty_print=True, encoding="unicode")
+    return root
+
+
+def compile_text(text: str, robot: Robot, path: str | Path | None = None):
+    """``text`` compiled by MuJoCo (its ``MjModel``; ``path``: the file it will be, whose folder
+    relative mesh paths are read from).
+
+    Raises:
+        OutputError: MuJoCo refuses the model (its message).
+    """
     import mujoco
 
     try:
-        mujoco.MjModel.from_xml_string(text)
+        if path is None:
+            return mujoco.MjModel.from_xml_string(text)
+        return mujoco.MjModel.from_xml_path(str(path))
     except Exception as exc:  # noqa: BLE001 - MuJoCo's compiler error, reported as ours
-        raise OutputError(f"MuJoCo refuses the model of {robot.name!r}: {exc}", element="mjcf",
+        raise OutputError(f"MuJoCo refuses the model of {robot.name!r}: {exc}", element="mjcf", path=path,
                           fix="report it with the robot's description (the model is built from it)") from None  # fmt: skip
+
+
+def mjcf_model(robot: Robot) -> str:
+    """The MJCF text of ``robot`` (see the module docstring), compiled by MuJoCo once to check it.
+
+    Raises:
+        OutputError: MuJoCo refuses the model (its message).
+    """
+    text = etree.tostring(mjcf_tree(robot), pretty_print=True, encoding="unicode")
+    compile_text(text, robot)
     return text
 
 

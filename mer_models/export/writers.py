@@ -14,10 +14,12 @@ the order.
 **npz** (the keys of mjlab's / BeyondMimic's ``csv_to_npz`` output, for one tracker: ``tracker`` is
 required, ``"mjlab"`` or ``"beyondmimic"``; docs/trackers.md), resampled like ``csv_to_npz`` to
 ``fps`` = 50 Hz by default, the trackers' control rate (angles and positions linearly, the base
-orientation by slerp; ``fps=None`` keeps the motion's rate): ``fps`` (1,) int64, ``joint_pos``,
+orientation by slerp; ``fps=None`` keeps the motion's rate): ``fps`` (1,) (int64 for BeyondMimic,
+float64 for mjlab, as their converters write it; a whole number of Hz), ``joint_pos``,
 ``joint_vel`` (F, D) float32, ``body_pos_w`` (F, B, 3), ``body_quat_w`` (F, B, 4, **wxyz**),
 ``body_lin_vel_w``, ``body_ang_vel_w`` (F, B, 3, world frame) float32, plus ``joint_names`` (D,)
-and ``body_names`` (B,). The joints and bodies are the robot's **own articulation**
+and ``body_names`` (B,) (plain unicode arrays: ``np.load`` reads them without pickle;
+:func:`~mer_models.export.npz_read.read_npz` checks them when mer reads the npz back). The joints and bodies are the robot's **own articulation**
 (:mod:`mer_data.robots.articulation`): every joint of its description (locked joints at their
 locked value, mimic joints from their master) and every body a simulator makes of it, so the
 arrays line up with the robot's model as the tracker loads it; they are in the tracker's order
@@ -248,7 +250,8 @@ def write_npz(
     else:  # mjlab logs body_link_lin_vel_w: the body frame's origin
         moving = pos
     arrays = {
-        "fps": np.array([rate], np.int64),
+        # as each tracker's converter writes it: BeyondMimic `[output_fps]` of an int, mjlab's of a float
+        "fps": np.array([rate], np.int64 if tracker == "beyondmimic" else np.float64),
         "joint_pos": jp.astype(np.float32),
         "joint_vel": finite_difference(torch.from_numpy(jp), motion.fps, dim=0).numpy().astype(np.float32),
         "body_pos_w": pos.astype(np.float32),

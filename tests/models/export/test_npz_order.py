@@ -219,8 +219,14 @@ def test_a_robot_with_locked_joints_holds_its_whole_articulation(tmp_path, share
 
 # ---- what is written: fps, velocities ------------------------------------------------------------------
 def test_fps_is_written_as_the_converters_write_it(tmp_path):
-    z = np.load(write_npz(tmp_path / "a.npz", _motion(load_robot("tron1")), tracker="mjlab"))
+    """mjlab's csv_to_npz logs ``[output_fps]`` of a float (float64), BeyondMimic's of an int (int64);
+    the names are plain unicode arrays, read without pickle."""
+    z = np.load(write_npz(tmp_path / "a.npz", _motion(load_robot("tron1")), tracker="mjlab"), allow_pickle=False)
+    assert z["fps"].shape == (1,) and z["fps"].dtype == np.float64 and z["fps"][0] == 50.0
+    assert z["joint_names"].dtype.kind == "U" and z["body_names"].dtype.kind == "U"
+    z = np.load(write_npz(tmp_path / "c.npz", _motion(load_robot("tron1")), tracker="beyondmimic"), allow_pickle=False)
     assert z["fps"].shape == (1,) and z["fps"].dtype == np.int64 and int(z["fps"][0]) == 50
+    assert z["joint_names"].dtype.kind == "U" and z["body_names"].dtype.kind == "U"
     with pytest.raises(OutputError, match="whole number"):
         write_npz(tmp_path / "b.npz", _motion(load_robot("tron1")), tracker="mjlab", fps=29.97)
 
