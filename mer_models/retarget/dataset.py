@@ -103,13 +103,14 @@ def find_clips(input_spec: str, source: str) -> dict[str, Path]:
     return discover_clips(root.parent, [root.name])[root.name]  # the same regular-file and duplicate checks
 
 
-def find_bvh_clips(input_spec: str) -> dict[str, Path]:
-    """clip name → BVH file of a local folder (:func:`mer_data.motion.sources.bvh_files`)."""
-    from mer_data.motion.sources import bvh_files
+def find_bvh_clips(input_spec: str, kind: str = "bvh") -> dict[str, Path]:
+    """clip name → file of a human ``kind`` (bvh, smpl, joints) in a local folder
+    (:func:`mer_data.motion.sources.human_files`)."""
+    from mer_data.motion.sources import human_files
 
     if str(input_spec).startswith("hf://"):
-        raise MerError("BVH input is read from a local folder", fix="download the files and pass --input DIR")
-    return bvh_files(input_spec)
+        raise MerError(f"{kind} input is read from a local folder", fix="download the files and pass --input DIR")
+    return human_files(input_spec, kind)
 
 
 def plan_jobs(clips: dict[str, Path], targets: Sequence[str], out_dir: Path, shard_index: int = 0, num_shards: int = 1) -> list[Job]:
@@ -438,13 +439,13 @@ def retarget_dataset(
     if method == "diffusion" and checkpoint is None:
         raise MerError("the diffusion method needs a model", fix="pass --model NAME, or use --method optimize")
     out_dir = Path(out_dir)
-    from mer_data.motion.sources import BVH_SOURCE
+    from mer_data.motion.sources import HUMAN_SOURCES
 
-    human = isinstance(source, str) and source.lower() == BVH_SOURCE
-    src_robot = BVH_SOURCE if human else as_robot(source)  # a human's skeleton is each clip's own
+    human = isinstance(source, str) and source.lower() in HUMAN_SOURCES
+    src_robot = source.lower() if human else as_robot(source)  # a human's skeleton is each clip's own
     robots = {r.name: r for r in map(as_robot, targets)}
-    source, targets = (BVH_SOURCE if human else src_robot.name), list(robots)
-    clips = find_bvh_clips(input_spec) if human else find_clips(input_spec, source)
+    source, targets = (src_robot if human else src_robot.name), list(robots)
+    clips = find_bvh_clips(input_spec, source) if human else find_clips(input_spec, source)
     for t in set(targets):  # OUT/TARGET a real folder (a planted link to elsewhere is refused), then
         real_folder(out_dir / t, out_dir)  # the temporary files of killed runs swept (live writers' are left alone)
         sweep_stale(out_dir / t)
