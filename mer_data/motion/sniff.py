@@ -95,10 +95,20 @@ def sniff_bytes(head: bytes) -> str:
 
 def sniff(path: str | Path) -> str:
     """The kind of the file at ``path`` from its first :data:`HEAD_BYTES` (module docstring); a
-    missing or unreadable file is left to the reader (``"text"``)."""
-    try:
-        with open(path, "rb") as f:
-            return sniff_bytes(f.read(HEAD_BYTES))
+    missing, unreadable or not regular file (a FIFO, a device) is left to the reader (``"text"``)."""
+    import os
+    import stat
+
+    try:  # regular files only (a FIFO would block): anything else is left to the reader, which refuses it
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            return "text"
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+        try:
+            if not stat.S_ISREG(os.fstat(fd).st_mode):
+                return "text"
+            return sniff_bytes(os.read(fd, HEAD_BYTES))
+        finally:
+            os.close(fd)
     except OSError:
         return "text"
 

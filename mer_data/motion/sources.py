@@ -233,8 +233,9 @@ def read_source(path: str | Path, source: Any, *, fps: float | None = SOURCE_FPS
         found = _file_kind(path)
         kind = source.lower() if isinstance(source, str) and source.lower() in HUMAN_SOURCES else found
         if kind is None or found is None or (kind == BVH_SOURCE) != (found == BVH_SOURCE):
-            what = {None: "not a human motion (a CSV or text)", BVH_SOURCE: "a BVH"}.get(found, f"an array file ({found})")
-            raise MerError(f"the source is {source!r}, but the file is {what}", path=path,
+            want = {BVH_SOURCE: "a BVH file", "smpl": "an SMPL .npz", "joints": "a joint-position array"}.get(kind, "a human motion")
+            what = {None: "a CSV or text", BVH_SOURCE: "a BVH"}.get(found, f"an array file ({found})")
+            raise MerError(f"the source is {source!r}, but the file is not {want}: it is {what}", path=path,
                            fix="give a .bvh / SMPL .npz / joint-position .npy for a human source, or the robot of a "
                                "CSV as --source")  # fmt: skip
         return _read_human(path, kind, opts)
