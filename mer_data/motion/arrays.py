@@ -73,7 +73,7 @@ def read_arrays(path: str | Path, *, error: type[MotionFormatError] = MotionForm
             return {"arr_0": np.load(path, allow_pickle=False)}
         except (ValueError, OSError, EOFError) as exc:
             raise error(f"cannot read the array ({str(exc)[:200]})", path=path, fix="write it again with numpy.save") from None
-    from .sniff import describe
+    from mer_data.base.sniff import describe
 
     raise error(f"is not a NumPy .npz or .npy file ({describe(head)})", path=path,
                 fix="give the .npz / .npy file itself (numpy.savez writes an npz)")  # fmt: skip

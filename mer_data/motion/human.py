@@ -91,6 +91,8 @@ __all__ = [
 #: A translation channel below the base that stays this close to its first frame is a constant [m].
 TRANSLATION_TOL = 1e-6
 _MATCH_TOL = 1e-6
+_MIXED = ("this clip's skeleton differs from the one it is read with (another performer's or studio's"
+          " hierarchy): read each clip with its own skeleton (mer retarget and mer evaluate do), or put clips of one hierarchy in a folder")
 
 # ---- the hierarchy ----------------------------------------------------------------------------
 
@@ -278,7 +280,7 @@ def bvh_nodes(skel: Skeleton) -> dict[str, int]:
 
 def _node_columns(bvh: BvhMotion, skel: Skeleton) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Revolute nodes, their channel columns and zero-pose angles [rad], checked against ``bvh``."""
-    fix = "build the skeleton from a file with the same hierarchy (human_skeleton)"
+    fix = _MIXED
     per_joint: dict[str, list[tuple[int, str, float]]] = {}
     for n in np.flatnonzero(skel.revolute_mask):
         Qp, axis = skel.rest_rotations[skel.parents[n]], skel.axes[n]
@@ -289,7 +291,7 @@ def _node_columns(bvh: BvhMotion, skel: Skeleton) -> tuple[np.ndarray, np.ndarra
         angle = math.atan2(M[i2, i1], M[i1, i1])
         if local[a] < 1 - _MATCH_TOL or np.abs(M - axis_rotation("xyz"[a], angle)).max() > _MATCH_TOL:
             raise BVHError(f"skeleton node {skel.node_names[n]!r} does not turn about an axis of its joint's frame",
-                           path=bvh.path, fix="pass a skeleton made by human_skeleton")  # fmt: skip
+                           path=bvh.path, fix=_MIXED)  # fmt: skip
         per_joint.setdefault(skel.link_names[n], []).append((int(n), "xyz"[a], angle))
     nodes, cols, q0 = [], [], []
     base = base_joint(bvh)
@@ -319,7 +321,7 @@ def _check_bones(bvh: BvhMotion, skel: Skeleton, base: int, trans: np.ndarray) -
             continue
         if j.name not in at or bvh.joints[j.parent].name not in at:
             raise BVHError(f"joint {j.name!r} of the file is not in the skeleton {skel.name!r}", path=bvh.path,
-                           line=j.line, fix="build the skeleton from a file with the same hierarchy")  # fmt: skip
+                           line=j.line, fix=_MIXED)  # fmt: skip
         got = np.linalg.norm(rest[at[j.name]] - rest[at[bvh.joints[j.parent].name]])
         diff = abs(got - np.linalg.norm(trans[k]) * bvh.scale)
         if diff > worst:
@@ -344,7 +346,7 @@ def human_motion(bvh: BvhMotion, skel: Skeleton) -> tuple[np.ndarray, np.ndarray
     base = base_joint(bvh)
     if skel.node_names[0] != bvh.joints[base].name:
         raise BVHError(f"the skeleton's base is {skel.node_names[0]!r}, this file's is {bvh.joints[base].name!r}",
-                       path=bvh.path, fix="build the skeleton from this file (human_skeleton)")  # fmt: skip
+                       path=bvh.path, fix=_MIXED)  # fmt: skip
     nodes, cols, q0 = _node_columns(bvh, skel)
     _check_bones(bvh, skel, base, folded_translations(bvh, base))
     pos, rot = fk(bvh.joints[: base + 1], bvh.values)

@@ -17,7 +17,7 @@ through :func:`read_source`, which gives the source skeleton and its motion at t
 * **joint positions** (``.npy``, ``.npz`` of T x 22|24 x 3, or ``source`` ``"joints"``): rotations
   derived from the positions (:mod:`mer_data.motion.joint_positions`), then as a BVH.
 
-What a file is comes from its content (:mod:`mer_data.motion.sniff`) as well as its name: a file of
+What a file is comes from its content (:mod:`mer_data.base.sniff`) as well as its name: a file of
 another type (an image, a URDF, a pickle) is refused naming what it is, before any reader parses it.
 
 Either is resampled to 30 Hz by :func:`~mer_data.motion.resample.resample` (frames on the 30 Hz grid
@@ -158,7 +158,7 @@ def human_files(folder: str | Path, kind: str) -> dict[str, Path]:
 
 def human_kind(path: str | Path | None, source: Any) -> str | None:
     """The human kind of a retarget's source (:data:`HUMAN_SOURCES`), None for a robot's CSV: the
-    ``source`` where it names one, else the file's content (:mod:`mer_data.motion.sniff`): a BVH,
+    ``source`` where it names one, else the file's content (:mod:`mer_data.base.sniff`): a BVH,
     an npz of SMPL parameters (else of joint positions), an npy. A file of no motion type (an image,
     a URDF, a pickle...) is refused here, naming what it is."""
     if isinstance(source, str) and source.lower() in HUMAN_SOURCES:
@@ -169,7 +169,7 @@ def human_kind(path: str | Path | None, source: Any) -> str | None:
 
 
 def _file_kind(path: str | Path) -> str | None:
-    from .sniff import expect
+    from mer_data.base.sniff import expect
 
     kind = expect(path, ("bvh", "npz", "npy", "text", "gzip", "binary", "empty"),
                   "a motion file (CSV, BVH, SMPL .npz, joint-position .npy)",

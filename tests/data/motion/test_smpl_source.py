@@ -209,3 +209,43 @@ def test_fuzzed_motion_files_raise_only_mer_errors(tmp_path):
 
 def test_parents_are_smpls():
     assert PARENTS[:4] == (-1, 0, 0, 0) and len(PARENTS) == 22
+
+
+def test_a_bvh_given_as_a_robot_description_is_named(tmp_path):
+    """mer robots register --urdf with a BVH: what it is and what to do, not "repair the XML"."""
+    from mer_data.robots.register import register_robot
+
+    f = tmp_path / "walk.urdf"
+    f.write_text("HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition Zposition\n}\nMOTION\n")
+    with pytest.raises(MerError, match=r"not a robot description .*BVH motion capture[\s\S]*mer retarget"):
+        register_robot("walker", f, dry_run=True)
+
+
+def test_the_command_line_takes_smpl_and_joint_files(tmp_path, capsys):
+    """mer retarget FILE picks SMPL or joints from the content (any name); a dataset run and
+    evaluation take --source smpl; a GIF given as a robot's motion is named as one."""
+    import json
+
+    from mer_models.cli import main
+
+    build_body_model(tmp_path / "models" / "smplh" / "SMPLH_FEMALE.npz", "smplh")
+    poses = random_poses(45, 52, scale=0.15)[:, :156]
+    trans = np.zeros((45, 3))
+    trans[:, 2] = 0.9
+    clip = tmp_path / "in" / "walk.npz"
+    clip.parent.mkdir()
+    np.savez(clip, poses=poses, trans=trans, betas=np.zeros(16), gender=np.array("female"), mocap_framerate=np.array(30.0))
+    odd = tmp_path / "walk.data"  # no telling ending: the content says
+    odd.write_bytes(clip.read_bytes())
+    bm = ["--body-model", str(tmp_path)]
+    assert main(["retarget", str(odd), "--target", "g1", "-o", str(tmp_path / "g1.csv"), "--no-physics", *bm]) == 0
+    assert "smpl -> g1" in capsys.readouterr().err
+    gif = tmp_path / "walk.csv"
+    gif.write_bytes(b"GIF89a\x01\x00\x01\x00\x00\x00\x00;")
+    assert main(["retarget", str(gif), "--source", "g1", "--target", "h1", "-o", str(tmp_path / "x.csv")]) == 1
+    assert "it looks like a GIF image" in capsys.readouterr().err and not (tmp_path / "x.csv").exists()
+    assert main(["retarget", "--input", str(tmp_path / "in"), "--source", "smpl", "--targets", "g1", "--out",
+                 str(tmp_path / "ds"), "--quiet", "--no-physics", *bm]) == 0  # fmt: skip
+    assert json.loads((tmp_path / "ds" / "g1" / "walk.metrics.json").read_text())["frames"] == 45
+    assert main(["evaluate", "--input", str(tmp_path / "in"), "--source", "smpl", "--targets", "g1", "--split", "all",
+                 "--stride", "30", "--save", str(tmp_path / "eval.json"), "--no-physics", *bm]) == 0  # fmt: skip

@@ -1,4 +1,4 @@
-"""What a file is, from its first bytes, before any reader parses it.
+"""What a file is, from its first bytes, before any reader parses it (motions and robot descriptions).
 
 Every motion reader's dispatch (:func:`mer_data.motion.sources.read_source`) and the robot
 registration input pass a file through :func:`sniff` first, so a file of the wrong type gets a
@@ -122,7 +122,7 @@ def describe(head_or_kind: bytes | str) -> str:
 _FIXES = {
     "urdf": "register it as a robot: mer robots register --urdf FILE; give a motion file as the input",
     "mjcf": "register it as a robot: mer robots register --mjcf FILE; give a motion file as the input",
-    "bvh": "give it as a motion: mer retarget FILE.bvh --target ROBOT",
+    "bvh": "a BVH is a human motion: mer retarget FILE.bvh --target ROBOT (robots are registered from a URDF or MJCF)",
     "hdf5": "inspect a shard with mer shards inspect FILE",
     "mcap": "an MCAP is an output; give the motion it was written from",
     "gif": "a GIF is a video output; give the motion it was written from",
