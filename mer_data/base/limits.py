@@ -66,6 +66,8 @@ LIMITS: dict[str, Limit] = {
         Limit("MER_MAX_BVH_FRAMES", 2_000_000, "frames", "number of frames of a BVH motion"),
         Limit("MER_MAX_MOTION_VALUES", 16_000_000, "numbers", "numbers of a motion a reader produces (frames x values per frame, after resampling)"),
         Limit("MER_MAX_UPSAMPLING", 8, "times", "how many times more frames resampling makes than a motion has (output rate / its rate)"),
+        Limit("MER_MAX_ARRAY_BYTES", 2 * 2**30, "bytes", "size of the arrays of an .npz/.npy motion or body model"),
+        Limit("MER_MAX_ARRAY_FRAMES", 2_000_000, "frames", "number of frames of an SMPL or joint-position motion"),
         Limit("MER_MAX_SHARD_ROWS", 10_000_000, "rows", "declared number of rows (windows) of a shard or teacher file"),
         Limit("MER_MAX_HDF5_ATTR_BYTES", 16 * 2**20, "bytes", "size of one HDF5 attribute (shard metadata)"),
         Limit("MER_MAX_HDF5_CHUNK_BYTES", 16 * 2**20, "bytes", "decompressed size of one HDF5 chunk"),

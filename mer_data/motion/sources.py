@@ -1,4 +1,5 @@
-"""A source motion from a file, whatever it is: a robot's LAFAN1-layout CSV or human motion capture (BVH).
+"""A source motion from a file, whatever it is: a robot's LAFAN1-layout CSV, or a human: motion capture
+(BVH), SMPL-family parameters (AMASS, video estimators) or joint positions (HumanML3D).
 
 Every retarget path (one file, a dataset, ``mer evaluate``, ``mer shards build``) reads its source
 through :func:`read_source`, which gives the source skeleton and its motion at the model's 30 Hz:
@@ -10,6 +11,14 @@ through :func:`read_source`, which gives the source skeleton and its motion at t
   frame (:func:`~mer_data.motion.human.standing_frame`; scaling reads standing heights and limb
   directions there), its angles unwrapped over time (Euler channels wrap at +-pi; forward kinematics
   does not care, interpolation does).
+
+* **SMPL** (``.npz`` with SMPL parameters, or ``source`` ``"smpl"``): the body model's joints for the
+  motion's shape (:mod:`mer_data.motion.smpl`), then as a BVH;
+* **joint positions** (``.npy``, ``.npz`` of T x 22|24 x 3, or ``source`` ``"joints"``): rotations
+  derived from the positions (:mod:`mer_data.motion.joint_positions`), then as a BVH.
+
+What a file is comes from its content (:mod:`mer_data.base.sniff`) as well as its name: a file of
+another type (an image, a URDF, a pickle) is refused naming what it is, before any reader parses it.
 
 Either is resampled to 30 Hz by :func:`~mer_data.motion.resample.resample` (frames on the 30 Hz grid
 are copied bit for bit, so 120 Hz capture of the same motion gives the same 30 Hz frames).
@@ -30,23 +39,33 @@ from .features import source_features
 from .lafan1 import Motion, read_lafan1_csv
 from .resample import resample
 
-__all__ = ["BVH_SOURCE", "BvhOptions", "SourceMotion", "is_bvh", "is_bvh_source", "read_source", "load_bvh_keypoints",
+__all__ = ["BVH_SOURCE", "HUMAN_SOURCES", "human_kind", "human_files", "BvhOptions", "HumanOptions", "SourceMotion", "is_bvh", "is_bvh_source", "read_source", "load_bvh_keypoints",
            "bvh_files", "bvh_motion", "human_source_skeleton", "SOURCE_FPS"]
 
 #: ``--source`` of human motion capture.
 BVH_SOURCE = "bvh"
+#: ``--source`` of each human kind: BVH, SMPL-family parameters, joint-position arrays.
+HUMAN_SOURCES = (BVH_SOURCE, "smpl", "joints")
 #: The rate every source is resampled to [Hz] (the model's).
 SOURCE_FPS = 30.0
 
 
 @dataclass(frozen=True)
 class BvhOptions:
-    """How to read a BVH: ``units`` (m, cm, mm, in; None: from the figure's size), ``up`` (y, z;
-    None: detected), ``keypoints`` (key point -> joint name overrides, partial is fine)."""
+    """How to read a human: ``units`` (BVH: m, cm, mm, in; None: from the figure's size), ``up``
+    (BVH: y, z; SMPL and joints also x, -y...; None: detected or the layout's), ``keypoints`` (key
+    point -> joint name overrides, partial is fine), ``body_model`` (SMPL: a model file or folder,
+    :mod:`mer_data.motion.body_model`), ``fps`` (SMPL / joints files that say no rate [Hz])."""
 
     units: str | None = None
     up: str | None = None
     keypoints: Mapping[str, str] | None = None
+    body_model: str | None = None
+    fps: float | None = None
+
+
+#: The options of any human source (the same as a BVH's).
+HumanOptions = BvhOptions
 
 
 @dataclass(frozen=True)
@@ -115,46 +134,122 @@ def bvh_files(folder: str | Path) -> dict[str, Path]:
     return clips
 
 
+_SUFFIXES = {BVH_SOURCE: (".bvh",), "smpl": (".npz",), "joints": (".npy", ".npz")}
+
+
+def human_files(folder: str | Path, kind: str) -> dict[str, Path]:
+    """clip name → file of a human ``kind`` (:data:`HUMAN_SOURCES`) in ``folder``: ``DIR/<kind>/*``
+    else ``DIR/*`` with the kind's endings (regular files only). Raises MerError where there are none."""
+    if kind == BVH_SOURCE:
+        return bvh_files(folder)
+    root, ends = Path(folder), _SUFFIXES[kind]
+    if not root.is_dir():
+        raise MerError("no such folder", path=root, fix=f"point --input at a folder of {'/'.join(ends)} files")
+    d = root / kind if (root / kind).is_dir() else root
+    clips = {p.name[: -len(p.suffix)]: p for p in sorted(d.iterdir())
+             if p.suffix.lower() in ends and p.is_file() and not p.is_symlink()}  # fmt: skip
+    if not clips:
+        raise MerError(f"no {'/'.join(ends)} files in the input (source {kind})", path=root,
+                       fix=f"point --input at a folder holding <clip>{ends[0]} files, or give the --source of its files")  # fmt: skip
+    return clips
+
+
+def human_kind(path: str | Path | None, source: Any) -> str | None:
+    """The human kind of a retarget's source (:data:`HUMAN_SOURCES`), None for a robot's CSV: the
+    ``source`` where it names one, else the file's content (:mod:`mer_data.base.sniff`): a BVH,
+    an npz of SMPL parameters (else of joint positions), an npy. A file of no motion type (an image,
+    a URDF, a pickle...) is refused here, naming what it is."""
+    if isinstance(source, str) and source.lower() in HUMAN_SOURCES:
+        return source.lower()
+    if path is None or (source is not None and not isinstance(source, str)):
+        return None if path is None else _robot_file(path)
+    return _file_kind(path)
+
+
+def _file_kind(path: str | Path) -> str | None:
+    from mer_data.base.sniff import expect
+
+    kind = expect(path, ("bvh", "npz", "npy", "text", "gzip", "binary", "empty"),
+                  "a motion file (CSV, BVH, SMPL .npz, joint-position .npy)",
+                  "give a motion: a robot's CSV with --source ROBOT, a .bvh, an SMPL .npz or a joint-position .npy")  # fmt: skip
+    if kind in ("text", "gzip", "binary", "empty"):  # no type of its own: the name says (its reader names the problem)
+        suffix = Path(path).suffix.lower()
+        return BVH_SOURCE if suffix == ".bvh" else ("smpl" if suffix == ".npz" else "joints" if suffix == ".npy" else None)
+    if kind == "bvh":
+        return BVH_SOURCE
+    if kind == "npz":
+        import zipfile
+
+        from .smpl import smpl_layout
+
+        try:
+            with zipfile.ZipFile(path) as zf:
+                keys = [n[:-4] for n in zf.namelist() if n.endswith(".npy")]
+        except (zipfile.BadZipFile, OSError):
+            return "smpl"  # the reader names the problem
+        return "smpl" if smpl_layout(keys) else "joints"
+    if kind == "npy":
+        return "joints"
+    return None
+
+
+def _robot_file(path: str | Path) -> None:
+    """A robot's motion: refuse a file that is no CSV (a BVH, an npz, an image...) naming what it is."""
+    kind = _file_kind(path)
+    if kind is not None:
+        raise MerError(f"is a human motion ({kind}), but the source given is a robot", path=path,
+                       fix=f"drop --source (the file says what it is), or give --source {kind}")  # fmt: skip
+    return None
+
+
 def is_bvh(path: str | Path) -> bool:
     """Whether ``path`` names a BVH file (by its extension)."""
     return str(path).lower().endswith(".bvh")
 
 
 def is_bvh_source(path: str | Path | None, source: Any) -> bool:
-    """Whether a retarget's source is human motion capture: ``--source bvh`` or a ``.bvh`` input."""
-    return (isinstance(source, str) and source.lower() == BVH_SOURCE) or (path is not None and is_bvh(path))
+    """Whether a retarget's source is a human (:func:`human_kind`): ``--source bvh|smpl|joints`` or a
+    human file."""
+    return human_kind(path, source) is not None
 
 
-def read_source(path: str | Path, source: Any, *, fps: float = SOURCE_FPS, bvh: BvhOptions | None = None) -> SourceMotion:
+def read_source(path: str | Path, source: Any, *, fps: float | None = SOURCE_FPS, bvh: BvhOptions | None = None) -> SourceMotion:
     """Read one source motion file (module docstring).
 
     Args:
         path: the file; source: the source robot (a :class:`~mer_data.robots.registry.Robot`) for a
-            CSV, or ``"bvh"`` / anything for a ``.bvh`` file.
-        fps: the CSV's frame rate [Hz] (a BVH says its own).
-        bvh: how to read a BVH.
+            CSV, or ``"bvh"``, ``"smpl"``, ``"joints"`` (None or any string: from the file).
+        fps: the CSV's frame rate [Hz] (None: 30; a BVH says its own; SMPL and joints: ``bvh.fps``).
+        bvh: how to read a human (:class:`BvhOptions`).
 
     Raises:
-        MotionFormatError / BVHError: the file's problem, with file and line; MerError: a CSV given
-        ``--source bvh``.
+        MotionFormatError / BVHError: the file's problem, with file and line; MerError: a file of
+        another type, or one that is not of the kind ``source`` says.
     """
-    if is_bvh(path):
-        return _read_bvh(path, bvh or BvhOptions())
-    if isinstance(source, str):
-        raise MerError(f"{path} is not a BVH file, but the source is {source!r}",
-                       path=path, fix="give a .bvh file for --source bvh, or the robot of the CSV as --source")  # fmt: skip
-    motion = read_lafan1_csv(path, source, fps=fps)
+    opts = bvh or BvhOptions()
+    if source is None or isinstance(source, str):
+        found = _file_kind(path)
+        kind = source.lower() if isinstance(source, str) and source.lower() in HUMAN_SOURCES else found
+        if kind is None or found is None or (kind == BVH_SOURCE) != (found == BVH_SOURCE):
+            want = {BVH_SOURCE: "a BVH file", "smpl": "an SMPL .npz", "joints": "a joint-position array"}.get(kind, "a human motion")
+            what = {None: "a CSV or text", BVH_SOURCE: "a BVH"}.get(found, f"an array file ({found})")
+            raise MerError(f"the source is {source!r}, but the file is not {want}: it is {what}", path=path,
+                           fix="give a .bvh / SMPL .npz / joint-position .npy for a human source, or the robot of a "
+                               "CSV as --source")  # fmt: skip
+        return _read_human(path, kind, opts)
+    _robot_file(path)
+    motion = read_lafan1_csv(path, source, fps=SOURCE_FPS if fps is None else fps)
     if motion.fps != SOURCE_FPS:
         motion = resample(motion, SOURCE_FPS, path=path)
     return SourceMotion(source.skeleton, motion, "csv")
 
 
-def human_source_skeleton(clip: Any, keypoints: Mapping[str, str] | None = None) -> Skeleton:
+def human_source_skeleton(clip: Any, keypoints: Mapping[str, str] | None = None, name: str = BVH_SOURCE) -> Skeleton:
     """The skeleton of the human in ``clip`` (a :class:`~mer_data.motion.bvh.BvhMotion`), named
-    :data:`BVH_SOURCE`, its zero pose the clip's most neutral standing frame."""
+    ``name`` (its kind, :data:`HUMAN_SOURCES`), its zero pose the clip's most neutral standing frame."""
     from .human import human_skeleton, standing_frame
 
-    return human_skeleton(clip, keypoints=keypoints, name=BVH_SOURCE, rest_frame=standing_frame(clip, keypoints))
+    return human_skeleton(clip, keypoints=keypoints, name=name, rest_frame=standing_frame(clip, keypoints))
 
 
 def bvh_motion(clip: Any, skel: Skeleton) -> Motion:
@@ -170,13 +265,29 @@ def bvh_motion(clip: Any, skel: Skeleton) -> Motion:
                   np.ascontiguousarray(joints, np.float64), tuple(skel.node_names[i] for i in rev))  # fmt: skip
 
 
-def _read_bvh(path: str | Path, opts: BvhOptions) -> SourceMotion:
-    from .bvh import read_bvh
+def read_human(path: str | Path, kind: str, opts: BvhOptions | None = None) -> Any:
+    """The human of a ``kind`` file as a :class:`~mer_data.motion.bvh.BvhMotion` (its file rate)."""
+    opts = opts or BvhOptions()
+    if kind == BVH_SOURCE:
+        from .bvh import read_bvh
 
-    clip = read_bvh(path, units=opts.units, up=opts.up)
-    skel = human_source_skeleton(clip, opts.keypoints)
+        return read_bvh(path, units=opts.units, up=opts.up)
+    if opts.units is not None:
+        raise MerError(f"--bvh-units applies to BVH files; {kind} files are in metres", path=path, fix="drop --bvh-units")
+    if kind == "smpl":
+        from .smpl import read_smpl
+
+        return read_smpl(path, body_model=opts.body_model, fps=opts.fps, up=opts.up)
+    from .joint_positions import read_joint_positions
+
+    return read_joint_positions(path, fps=opts.fps, up=opts.up)
+
+
+def _read_human(path: str | Path, kind: str, opts: BvhOptions) -> SourceMotion:
+    clip = read_human(path, kind, opts)
+    skel = human_source_skeleton(clip, opts.keypoints, name=kind)
     motion = bvh_motion(clip, skel)
     if motion.fps != SOURCE_FPS:
         motion = resample(motion, SOURCE_FPS, path=path)
     notes = (*clip.notes, "zero pose: the clip's most neutral standing frame")
-    return SourceMotion(skel, motion, "bvh", notes)
+    return SourceMotion(skel, motion, kind, notes)

@@ -12,8 +12,9 @@ from typing import Literal
 import numpy as np
 import yaml
 
-from mer_data.base.errors import RobotCardError
+from mer_data.base.errors import MalformedURDFError, RobotCardError
 from mer_data.base.safe_io import decode_utf8, read_regular_file, safe_yaml_load, strict_json_loads
+from mer_data.base.sniff import expect as sniff_expect
 from mer_data.skeleton import KEYPOINTS, Skeleton
 
 from .builder import build_skeleton
@@ -204,6 +205,8 @@ def register_robot(
     """
     validate_robot_name(name)
     urdf_path = Path(urdf_path)
+    sniff_expect(urdf_path, ("urdf", "mjcf", "xml", "text", "binary", "empty"), "a robot description (URDF or MJCF)",
+                 "give the robot's .urdf, or its MJCF .xml with --mjcf", MalformedURDFError)  # a BVH, an image...: named
     fmt = description_format(urdf_path)
     notes: list[str] = []
     if expect is not None and expect != fmt:

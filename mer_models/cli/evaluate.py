@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from .retarget import bvh_options, check_refine, physics_option
+from .retarget import add_human_options, bvh_options, check_refine, physics_option
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -43,10 +43,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "--no-physics: key points alone, the paper's energy)")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.add_argument("--save", help="also write the JSON report to this file")
-    b = p.add_argument_group("human motion capture (--source bvh: DIR/bvh/*.bvh or DIR/*.bvh)")
+    b = p.add_argument_group("humans (--source bvh|smpl|joints: DIR/<source>/* or DIR/*.bvh|.npz|.npy)")
     b.add_argument("--bvh-units", choices=["m", "cm", "mm", "in"], help="length unit of the BVH files (default: from the figure's size)")
     b.add_argument("--bvh-up", choices=["y", "z"], help="up axis of the BVH files (default: detected)")
     b.add_argument("--bvh-keypoints", metavar="FILE", help="key point -> BVH joint overrides (YAML or JSON)")
+    add_human_options(p)
+    p.add_argument("--fps", type=float, default=None, help="frame rate of SMPL / joint-position files that say none [Hz] "
+                   "(default: joint positions 20, SMPL 30)")
     p.set_defaults(func=cmd_evaluate)
 
 
@@ -60,7 +63,7 @@ def cmd_evaluate(args) -> int:
     methods = tuple(args.methods or (("model", "optimize") if ckpt is not None else ("optimize",)))
     opts = EvalOptions(split=args.split, stride=args.stride, max_windows=args.max_windows, methods=methods,
                        steps=args.steps, guidance=args.guidance, init_noise=args.init_noise, batch_size=args.batch_size, seed=args.seed, scaling=args.scaling, refine=args.refine, bf16=args.bf16,
-                       physics=physics_option(args), bvh=bvh_options(args) if args.source.lower() == "bvh" else None,
+                       physics=physics_option(args), bvh=bvh_options(args) if args.source.lower() in ("bvh", "smpl", "joints") else None,
                        **{k: v for k, v in {"opt_iters": args.opt_iters, "opt_gn_iters": args.opt_gn_iters}.items() if v is not None})  # fmt: skip
     report = evaluate(args.input, args.source, args.targets, checkpoint=ckpt, opts=opts,
                       progress=lambda s: print(s, file=sys.stderr))  # fmt: skip

@@ -30,9 +30,9 @@ def choose_method(args: argparse.Namespace, human: bool) -> tuple[str, str | Non
     given = model_options(args)
     if human and (given or args.method == "diffusion"):
         what = " ".join(given) or "--method diffusion"
-        raise MerError(f"{what}: a model cannot retarget a human (BVH) source: mer's models were trained on robot motion "
+        raise MerError(f"{what}: a model cannot retarget a human source (BVH, SMPL family, joint positions): mer's models were trained on robot motion "
                        "only and have never seen a human skeleton, so the model option would be ignored",
-                       fix="drop it: a BVH source is retargeted by the optimiser (the default path); to use a model, "
+                       fix="drop it: a human source is retargeted by the optimiser (the default path); to use a model, "
                        "retarget a robot's motion (e.g. the optimiser's output CSV) with --model")  # fmt: skip
     if args.method == "optimize" and given:
         raise MerError(f"{' '.join(given)}: --method optimize runs no model, so the model option would be ignored",
@@ -47,22 +47,25 @@ def choose_method(args: argparse.Namespace, human: bool) -> tuple[str, str | Non
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "retarget",
-        help="retarget a robot's LAFAN1-layout CSV, or human motion capture (BVH), to a robot",
-        description="Retarget INPUT (CSV in the source robot's LAFAN1 layout, or a .bvh of a human) to the target robot. "
+        help="retarget a robot's LAFAN1-layout CSV, or a human (BVH, SMPL-family .npz, joint-position .npy), to a robot",
+        description="Retarget INPUT (CSV in the source robot's LAFAN1 layout, or a human: .bvh motion capture, an SMPL / SMPL+H "
+        "/ SMPL-X parameter .npz (AMASS, video estimators), or T x 22|24 x 3 joint positions .npy (HumanML3D)) to the "
+        "target robot; the file's type comes from its content. "
         "Outputs: CSV in the target's layout (-o), a motion tracker's npz (mjlab or BeyondMimic), Foxglove MCAP, PNG film "
         "strip, GIF/MP4 video. "
         "Or a whole dataset: --input DIR|hf://REPO --targets ROBOT... --out DIR retargets every clip to every "
         "target (batched, resumable, --shard-index/--num-shards for array jobs; docs/model.md).",
     )
     p.add_argument("input", nargs="?", help="source motion: .csv or .csv.gz of a robot (root xyz, quat xyzw, joints), "
-                   "or .bvh human motion capture")
-    p.add_argument("--source", help="robot of the input motion (e.g. g1), or bvh for human motion capture "
-                   "(default for a .bvh input)")
+                   "or a human: .bvh, SMPL-family .npz, joint-position .npy")
+    p.add_argument("--source", help="robot of the input motion (e.g. g1), or a human: bvh, smpl or joints "
+                   "(default for a human file: its kind)")
     b = p.add_argument_group("human motion capture (BVH)")
     b.add_argument("--bvh-units", choices=["m", "cm", "mm", "in"], help="length unit of the BVH (default: from the figure's size)")
     b.add_argument("--bvh-up", choices=["y", "z"], help="up axis of the BVH (default: detected from where the head is)")
     b.add_argument("--bvh-keypoints", metavar="FILE", help="YAML or JSON mapping key point -> BVH joint name, for the key "
                    "points the name patterns miss or get wrong (partial is fine; docs/motion.md)")
+    add_human_options(p)
     p.add_argument("--target", help="robot to retarget to (e.g. h1)")
     d = p.add_argument_group("datasets")
     d.add_argument("--input", dest="input_dir", metavar="DIR|hf://REPO",
@@ -104,7 +107,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    "model's output (fast and exact; default: the model's own, 0 for a diffusion model, 2 for a warm start)")
     p.add_argument("--bf16", action="store_true", help="diffusion: the network in bfloat16 (about twice as fast on CPUs with AMX "
                    "or AVX512-BF16 and on GPUs, within 0.5 mm of float32 on LAFAN1; emulated and slower elsewhere: a warning says so)")
-    p.add_argument("--fps", type=float, default=30.0, help="frame rate of the input (resampled to 30 Hz)")
+    p.add_argument("--fps", type=float, default=None, help="frame rate of the input [Hz] (default: a CSV 30, joint positions "
+                   "20 (HumanML3D's), SMPL the file's own, else 30; resampled to 30 Hz)")
     p.add_argument("--device", default="cpu")
     p.add_argument("--allow-unseen", action="store_true", help="retarget to a robot the model never saw (zero-shot)")
     p.add_argument("--physics", action=argparse.BooleanOptionalAction, default=True,
@@ -123,30 +127,46 @@ def physics_option(args):
     return PhysicsConfig()
 
 
+def add_human_options(p) -> None:
+    """``--body-model`` and ``--up`` (SMPL-family and joint-position sources; ``mer retarget``, ``evaluate``)."""
+    h = p.add_argument_group("SMPL-family parameters and joint positions (--source smpl|joints)")
+    h.add_argument("--body-model", metavar="PATH", help="SMPL / SMPL+H / SMPL-X model .npz, or the folder holding smplx/, "
+                   "smplh/, smpl/ (default: $MER_BODY_MODELS, else body_models in the user config; docs/kinematics.md)")
+    h.add_argument("--up", choices=["x", "y", "z", "-x", "-y", "-z"], help="up axis of an SMPL or joint-position file "
+                   "(default: AMASS z, joint positions and video estimators detected from where the head is)")
+
+
 def bvh_options(args):
-    """The BVH reading options of ``--bvh-units``, ``--bvh-up``, ``--bvh-keypoints``."""
+    """The human reading options of ``--bvh-units``, ``--bvh-up``, ``--bvh-keypoints``, ``--body-model``, ``--up``, ``--fps``."""
+    from mer_data.base.errors import MerError
     from mer_data.motion.sources import BvhOptions, load_bvh_keypoints
 
     keypoints = load_bvh_keypoints(args.bvh_keypoints) if args.bvh_keypoints else None
-    return BvhOptions(units=args.bvh_units, up=args.bvh_up, keypoints=keypoints)
+    up = getattr(args, "up", None)
+    if up is not None and args.bvh_up is not None:
+        raise MerError("give --bvh-up (BVH) or --up (SMPL, joints), not both")
+    return BvhOptions(units=args.bvh_units, up=up or args.bvh_up, keypoints=keypoints,
+                      body_model=getattr(args, "body_model", None), fps=getattr(args, "fps", None))  # fmt: skip
 
 
 def resolve_source(args, path) -> None:
-    """``--source`` from a ``.bvh`` input when not given; refuse a missing one for a CSV."""
+    """``--source`` from a human input's kind when not given (the file's content); refuse a missing
+    one for a CSV."""
     from mer_data.base.errors import MerError
-    from mer_data.motion.sources import BVH_SOURCE, is_bvh
+    from mer_data.motion.sources import human_kind
 
     if args.source is None:
-        if path is not None and is_bvh(path):
-            args.source = BVH_SOURCE
+        kind = human_kind(path, None) if path is not None else None
+        if kind is not None:
+            args.source = kind
         else:
             raise MerError("--source is required for robot motion", fix="name the robot of the input, e.g. --source g1 "
-                           "(or --source bvh for a folder of BVH files)")  # fmt: skip
+                           "(or --source bvh|smpl|joints for a folder of human files)")  # fmt: skip
 
 
 def cmd_retarget(args) -> int:
     from mer_data.base.errors import MerError
-    from mer_data.motion.sources import BVH_SOURCE
+    from mer_data.motion.sources import HUMAN_SOURCES
 
     if args.input_dir is not None or args.targets is not None:
         resolve_source(args, None)
@@ -154,7 +174,7 @@ def cmd_retarget(args) -> int:
     if args.input is None or args.target is None:
         raise MerError("give an INPUT file and --target, or a dataset: --input DIR --targets ROBOT... --out DIR")
     resolve_source(args, args.input)
-    human = args.source.lower() == BVH_SOURCE
+    human = args.source.lower() in HUMAN_SOURCES
     args.method, why = choose_method(args, human)
     if not any([args.output, args.npz, args.mcap, args.plot, args.video]):
         raise MerError("nothing to write", fix="give -o OUT.csv and/or --npz/--mcap/--plot/--video")
@@ -252,7 +272,7 @@ def _retarget_one(args, model, human: bool, kw: dict):
     return retarget_file(
         args.input, args.source, args.target, out_csv=args.output, npz=args.npz, mcap=args.mcap, plot=args.plot,
         video=args.video, video_fps=args.video_fps, video_range=_video_range(args),
-        model=model, method=args.method, input_fps=args.fps, device=args.device, npz_fps=args.npz_fps, npz_for=args.npz_for,
+        model=model, method=args.method, input_fps=args.fps or 30.0, device=args.device, npz_fps=args.npz_fps, npz_for=args.npz_for,
         physics=physics_option(args), bvh=bvh_options(args) if human else None, metrics=True, **kw,
     )  # fmt: skip
 
@@ -289,7 +309,7 @@ def _dataset(args) -> int:
             from mer_data.robots.registry import as_robot
             from mer_models.retarget.clip import zero_shot_notes
 
-            source = args.source if args.source.lower() == "bvh" else as_robot(args.source).name
+            source = args.source if args.source.lower() in ("bvh", "smpl", "joints") else as_robot(args.source).name
             for note in dict.fromkeys(n for t in args.targets for n in zero_shot_notes(checkpoint, as_robot(t).name, source)):
                 print(note, file=sys.stderr)
         kw = {"steps": args.steps, "guidance": args.guidance, "seed": args.seed, "allow_unseen": args.allow_unseen, "bf16": args.bf16,
@@ -324,9 +344,9 @@ def _dataset(args) -> int:
     try:
         summary = retarget_dataset(
             args.input_dir, args.source, args.targets, args.out, method=method, checkpoint=checkpoint,
-            formats=args.formats, shard_index=args.shard_index, num_shards=args.num_shards, input_fps=args.fps, npz_fps=args.npz_fps,
+            formats=args.formats, shard_index=args.shard_index, num_shards=args.num_shards, input_fps=args.fps or 30.0, npz_fps=args.npz_fps,
             npz_for=args.npz_for, device=args.device, progress=progress, physics=physics_option(args),
-            bvh=bvh_options(args) if args.source.lower() == "bvh" else None, workers=workers, on_start=started, **kw,
+            bvh=bvh_options(args) if args.source.lower() in ("bvh", "smpl", "joints") else None, workers=workers, on_start=started, **kw,
         )  # fmt: skip
     finally:
         if bar is not None:

@@ -21,7 +21,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--robot", required=True, help="the robot MOTION.csv moves (the retarget's --target)")
     p.add_argument("--reference", metavar="SRC", help="the motion it was retargeted from (the retarget's INPUT), shown scaled "
                    "to the robot")  # fmt: skip
-    p.add_argument("--source", help="robot of --reference (e.g. g1), or bvh (default for a .bvh reference)")
+    p.add_argument("--source", help="robot of --reference (e.g. g1), or bvh, smpl, joints (default for a human reference: "
+                   "its kind, from the file)")
+    p.add_argument("--body-model", metavar="PATH", help="SMPL body model of an SMPL --reference (docs/kinematics.md)")
     p.add_argument("--fps", type=float, default=30.0, help="frame rate of MOTION.csv [Hz] (default 30, what mer retarget writes)")
     p.add_argument("--reference-fps", type=float, default=30.0, help="frame rate of a CSV --reference [Hz] (default 30)")
     p.add_argument("--meshes", metavar="DIR", help="a folder with the robot's mesh files, besides the registered description's "
@@ -35,7 +37,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from mer_data.base.errors import MerError
-    from mer_data.motion.sources import is_bvh_source, read_source
+    from mer_data.motion.sources import BvhOptions, human_kind, read_source
     from mer_data.robots.registry import as_robot
     from mer_models.export.viewer import require_viser, serve_motion
     from mer_models.export.viewer_guard import stop_on_sigterm
@@ -48,10 +50,11 @@ def run(args: argparse.Namespace) -> int:
     motion = _target_motion(read_source(args.motion, robot, fps=args.fps).motion, robot)
     points = nodes = ref_skel = None
     if args.reference is not None:
-        human = is_bvh_source(args.reference, args.source)
+        human = human_kind(args.reference, args.source)
         if args.source is None and not human:
             raise MerError("--reference needs --source: the robot of the reference motion", fix="add e.g. --source g1")
-        src = read_source(args.reference, "bvh" if human else as_robot(args.source), fps=args.reference_fps)
+        src = read_source(args.reference, human or as_robot(args.source), fps=args.reference_fps,
+                          bvh=BvhOptions(body_model=args.body_model))  # fmt: skip
         feats = src.features()
         if len(feats) != motion.num_frames:
             raise MerError(f"the reference has {len(feats)} frames at 30 Hz, the motion {motion.num_frames}: it is not the "

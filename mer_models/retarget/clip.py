@@ -225,9 +225,9 @@ def retarget_features_many(
     if method == "diffusion":
         if checkpoint is None:
             raise MerError("the diffusion method needs a model", fix="pass --model PATH, or use --method optimize")
-        if ref.name == "bvh":  # mer_data.motion.sources.BVH_SOURCE
-            raise MerError("the model was trained on robot sources only: it has never seen a human (BVH) source",
-                           fix="use --method optimize (the default for .bvh input)")  # fmt: skip
+        if ref.name in ("bvh", "smpl", "joints"):  # mer_data.motion.sources.HUMAN_SOURCES
+            raise MerError(f"the model was trained on robot sources only: it has never seen a human ({ref.name}) source",
+                           fix="use --method optimize (the default for a human input)")  # fmt: skip
         if not allow_unseen:
             for t in tgts:
                 check_robot(checkpoint, t.name, "targets", t.fingerprint)
@@ -339,10 +339,10 @@ def retarget_file(
 
         check_video_path(video, video_fps)  # before the work: a bad ending or a missing ffmpeg fails at once
 
-    from mer_data.motion.sources import BVH_SOURCE, is_bvh_source, read_source
+    from mer_data.motion.sources import human_kind, read_source
 
-    human = is_bvh_source(input_csv, source)
-    src_robot = BVH_SOURCE if human else as_robot(source)  # resolved once: below, Robots only
+    human = human_kind(input_csv, source)  # bvh, smpl, joints (from --source, else the file's content), None: a CSV
+    src_robot = human if human else as_robot(source)  # resolved once: below, Robots only
     tgt_robot = as_robot(target)
     if npz is not None:  # refuse an npz that cannot be written before the work: which tracker reads it
         require_tracker(npz_for, "npz_for=")

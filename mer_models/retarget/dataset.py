@@ -390,13 +390,13 @@ def retarget_dataset(
     if method == "diffusion" and checkpoint is None:
         raise MerError("the diffusion method needs a model", fix="pass --model NAME, or use --method optimize")
     out_dir = Path(out_dir)
-    from mer_data.motion.sources import BVH_SOURCE
+    from mer_data.motion.sources import HUMAN_SOURCES
 
-    human = isinstance(source, str) and source.lower() == BVH_SOURCE
-    src_robot = BVH_SOURCE if human else as_robot(source)  # a human's skeleton is each clip's own
+    human = isinstance(source, str) and source.lower() in HUMAN_SOURCES
+    src_robot = source.lower() if human else as_robot(source)  # a human's skeleton is each clip's own
     robots = {r.name: r for r in map(as_robot, targets)}
-    source, targets = (BVH_SOURCE if human else src_robot.name), list(robots)
-    clips = find_bvh_clips(input_spec) if human else find_clips(input_spec, source)
+    source, targets = (src_robot if human else src_robot.name), list(robots)
+    clips = find_bvh_clips(input_spec, source) if human else find_clips(input_spec, source)
     for t in set(targets):  # OUT/TARGET a real folder (a planted link to elsewhere is refused), then
         real_folder(out_dir / t, out_dir)  # the temporary files of killed runs swept (live writers' are left alone)
         sweep_stale(out_dir / t)

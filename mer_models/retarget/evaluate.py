@@ -108,14 +108,15 @@ def collect_windows(input_dir: str | Path, robot: str | Robot, opts: EvalOptions
     (``DIR/<robot>/*.csv``) or, for ``"bvh"``, the humans of ``DIR/bvh/*.bvh`` (each clip its own
     skeleton, :func:`mer_data.motion.sources.read_source`)."""
     from mer_data.motion.lafan1 import read_lafan1_csv
-    from mer_data.motion.sources import BVH_SOURCE, bvh_files, read_source
+    from mer_data.motion.sources import HUMAN_SOURCES, human_files, read_source
     from mer_data.motion.splits import EVAL, TRAIN, resolve_split
     from mer_data.motion.windows import make_windows, window_features, window_starts
 
     root = Path(input_dir)
-    human = isinstance(robot, str) and robot.lower() == BVH_SOURCE
+    human = isinstance(robot, str) and robot.lower() in HUMAN_SOURCES
     if human:
-        source, files = BVH_SOURCE, bvh_files(root)
+        source = robot.lower()
+        files = human_files(root, source)
     else:
         robot = as_robot(robot)
         source = robot.name
@@ -129,7 +130,7 @@ def collect_windows(input_dir: str | Path, robot: str | Robot, opts: EvalOptions
     motions, skels, chosen = {}, {}, {TRAIN: [], EVAL: []}
     for clip, path in files.items():
         if human:
-            src = read_source(path, BVH_SOURCE, bvh=opts.bvh)
+            src = read_source(path, source, bvh=opts.bvh)
             motion, skels[clip] = src.motion, src.skeleton
         else:
             motion, skels[clip] = read_lafan1_csv(path, robot), robot.skeleton
@@ -221,10 +222,10 @@ def evaluate(
 ) -> dict:
     """Evaluate; returns a JSON-ready report (see :func:`format_table`)."""
     input_dir = Path(input_dir)
-    from mer_data.motion.sources import BVH_SOURCE
+    from mer_data.motion.sources import HUMAN_SOURCES
 
-    human = isinstance(source, str) and source.lower() == BVH_SOURCE
-    src_robot = BVH_SOURCE if human else as_robot(source)  # every name resolved once, here
+    human = isinstance(source, str) and source.lower() in HUMAN_SOURCES
+    src_robot = source.lower() if human else as_robot(source)  # every name resolved once, here
     tgt_robots = {t: as_robot(t) for t in targets}
     methods = tuple(opts.methods)
     unknown = [m for m in methods if m not in METHODS]

@@ -45,13 +45,14 @@ def find_clips(input_spec: str, source: str) -> dict[str, Path]:
     return discover_clips(root.parent, [root.name])[root.name]  # the same regular-file and duplicate checks
 
 
-def find_bvh_clips(input_spec: str) -> dict[str, Path]:
-    """clip name → BVH file of a local folder (:func:`mer_data.motion.sources.bvh_files`)."""
-    from mer_data.motion.sources import bvh_files
+def find_bvh_clips(input_spec: str, kind: str = "bvh") -> dict[str, Path]:
+    """clip name → file of a human ``kind`` (bvh, smpl, joints) in a local folder
+    (:func:`mer_data.motion.sources.human_files`)."""
+    from mer_data.motion.sources import human_files
 
     if str(input_spec).startswith("hf://"):
-        raise MerError("BVH input is read from a local folder", fix="download the files and pass --input DIR")
-    return bvh_files(input_spec)
+        raise MerError(f"{kind} input is read from a local folder", fix="download the files and pass --input DIR")
+    return human_files(input_spec, kind)
 
 
 def plan_jobs(clips: dict[str, Path], targets: Sequence[str], out_dir: Path, shard_index: int = 0, num_shards: int = 1) -> list[Job]:
