@@ -514,7 +514,7 @@ def retarget_dataset(
 METRIC_COLUMNS = (("g_mpbpe", "g-mpbpe[m]", ".4f"), ("mpboe", "mpboe[rad]", ".3f"), ("mpbve", "mpbve[m/s]", ".3f"),
                   ("jerk_frame", "jerk[r/f3]", ".4f"), ("limit_violation", "limits", ".3f"), ("floor_frames", "floor<-1cm", ".3f"),
                   ("skate_median", "skate[m/s]", ".3f"), ("selfpen_1cm_frames", "selfpen>1cm", ".3f"),
-                  ("speed_frames", ">vel.lim", ".3f"))  # fmt: skip
+                  ("speed_frames", ">vel.lim", ".3f"), ("body_floor_frames", "body<-1cm", ".3f"), ("hover_frames", "hover", ".3f"))  # fmt: skip
 
 
 def metric_header() -> str:
