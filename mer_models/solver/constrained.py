@@ -100,7 +100,9 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
                                     w_anchor=0.0, w_flat=0.0, w_swing=0.0)  # fmt: skip
     pos, rot = batch_fk(graph, q, base_pos, base_rot)
     plain = q
-    need = (-lowest_points(model, pos, rot)[0].amin(-1)).clamp_min(0)  # (B, T): the base lifted first, where a body is in the floor
+    low0 = lowest_points(model, pos, rot)[0]
+    sole = torch.cat(feet) if any(len(f) for f in feet) else torch.arange(S, device=dev)
+    need = (-low0[..., sole].amin(-1)).clamp_min(0)  # (B, T): the base lifted first where a foot is in the floor
     if bool((need > 0).any()):  # (a start the floor's linearisation holds from; the rounds then take back what they can)
         base_pos = base_pos.clone()
         base_pos[..., 2] += need
