@@ -34,6 +34,7 @@ from mer_data.motion.lafan1 import read_lafan1_csv  # noqa: E402
 from mer_data.robots.collision import collision_model  # noqa: E402
 from mer_data.robots.registry import load_robot  # noqa: E402
 from mer_models.export.writers import TargetMotion  # noqa: E402
+from mer_models.retarget.artifacts import motion_artifacts  # noqa: E402
 from mer_models.retarget.clip import retarget_features, sequence_metrics, source_features  # noqa: E402
 from mer_models.solver.physics import PhysicsConfig  # noqa: E402
 
@@ -69,6 +70,9 @@ def main(argv=None) -> int:
         u = read_lafan1_csv(Path(args.input) / "h1" / f"{clip}.csv", h1)
         ref = TargetMotion(h1.skeleton, FPS, u.node_angles(h1.skeleton)[sl], u.base_pos[sl], quat_to_matrix(torch.from_numpy(u.base_quat[sl])).numpy())
         ref_local = pelvis_frame(*ref.forward_kinematics())
+        art = motion_artifacts(ref.q, ref.base_pos, ref.base_rot, FPS, h1.skeleton, geom, f, g1.skeleton)
+        rows.append({"window": w, "method": "Unitree", "body_dist": 0.0, "seconds": float("nan"), "frames": len(f), "g_mpbpe": float("nan"),
+                     "jerk_frame": float("nan"), **{k: art[k] for k in ("body_floor_frames", "hover_frames", "skate_median", "skate_share")}})  # fmt: skip
         for meth in args.methods:
             t0 = time.perf_counter()
             res = retarget_features(f, g1.skeleton, h1.skeleton, method="optimize", fps=FPS, physics=METHODS[meth])
@@ -82,10 +86,10 @@ def main(argv=None) -> int:
           f"{'hover':>6s} {'skate':>6s} {'>5cm/s':>6s} {'fr/s':>6s}")  # fmt: skip
     mean = {meth: {k: float(np.nanmean([r[k] for r in rows if r["method"] == meth]))
                    for k in ("body_dist", "g_mpbpe", "jerk_frame", "body_floor_frames", "hover_frames", "skate_median", "skate_share")}
-            for meth in args.methods}  # fmt: skip
-    for meth in args.methods:
+            for meth in ("Unitree", *args.methods)}  # fmt: skip
+    for meth in ("Unitree", *args.methods):
         v = mean[meth]
-        fps = sum(r["frames"] for r in rows if r["method"] == meth) / sum(r["seconds"] for r in rows if r["method"] == meth)
+        fps = sum(r["frames"] for r in rows if r["method"] == meth) / sum(r["seconds"] for r in rows if r["method"] == meth) if meth != "Unitree" else float("nan")
         base = mean.get("optimize", v)
         print(f"{meth:12s} {100 * v['body_dist']:15.2f} {v['body_dist'] / base['body_dist']:8.2f} {v['g_mpbpe']:8.4f} "
               f"{v['g_mpbpe'] / base['g_mpbpe']:8.2f} {v['jerk_frame']:7.4f} {v['body_floor_frames']:9.3f} {v['hover_frames']:6.3f} "
