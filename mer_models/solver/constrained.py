@@ -39,7 +39,7 @@ from .stance import lowest_foot_points
 
 __all__ = ["constrain", "NEAR_M", "TOLERANCE_M"]
 
-NEAR_M = 0.01  # pairs closer than self_margin + this are in a round's self rows (active or not)
+NEAR_M = 0.002  # pairs closer than self_margin + this are in a round's self rows (active or not)
 TOLERANCE_M = 0.002  # a constraint met to within this [m] needs no further round
 SLIDE_TOL_M = 0.0015  # a stance foot's material point slower than this per frame [m] needs no further round
 
