@@ -82,9 +82,9 @@ class PhysicsConfig:
     feasible: bool = True  # after the solve: joint speed clamped, base lifted off the floor (mer_models.retarget.feasible)
     method: str = "penalty"  # "penalty": the terms above (the default, measured); "constraints": the plain solve, then the least change that meets them (.constrained)
     rho: float = 3.0  # constraints: the augmented Lagrangian's penalty weight, relative to w_kp
-    al_rounds: int = 4  # constraints: most multiplier updates (each after al_iters whole-window iterations)
+    al_rounds: int = 6  # constraints: most multiplier updates (each after al_iters whole-window iterations)
     al_iters: int = 4  # constraints: whole-window iterations per round
-    al_smooth: float = 16.0  # constraints: the temporal prior's weight in the rounds, relative to the solve's (a smooth change)
+    al_smooth: float = 48.0  # constraints: the temporal prior's weight in the rounds, relative to the solve's (a smooth change)
     hover: float = 0.005  # constraints: a stance foot's lowest point at most this high [m] while the source's foot is down
     al_reach: int = 4  # constraints: frames this far from an active constraint move with it; the rest are held
     xy_weight: float = 1.0  # constraints: the stance anchor's weight, relative to rho (a penalty: its anchor moves each round)
