@@ -1,26 +1,28 @@
 """Physics as constraints: the least change to the unconstrained solution that makes it physical.
 
-``PhysicsConfig.method`` "constraints" (the default). The optimiser first solves the plain problem
-(key points, orientations, nominal pose, temporal prior: the paper's energy); :func:`constrain` then
-minimises the same energy subject to
+``PhysicsConfig.method`` "constraints". The optimiser first solves the plain problem (key points,
+orientations, nominal pose, temporal prior: the paper's energy, no goal edit); :func:`constrain`
+then minimises the same energy subject to
 
 * **floor**: every collision shape's lowest vertex at or above z = 0 (every body, not only feet);
 * **self-penetration**: every checked pair of bodies (:mod:`mer_data.robots.collision`) apart by
   ``self_margin`` along its separating axis (the depth that bounds the metric's from above);
 * **stance**: while the source's foot is down, the foot's lowest point at most ``hover`` above the
-  floor and its node at the stance phase's mean x, y *of the unconstrained solution* (no sliding,
-  no hovering; the anchor is fixed, so it does not chase the iterate);
+  floor, and (``stance_xy``) its lowest body-fixed point not sliding from one frame to the next
+  (:mod:`.stance`, a penalty of weight ``rho * xy_weight``: its point is re-chosen each round);
 
 by an augmented Lagrangian around the whole-window Levenberg-Marquardt of
 :func:`~.ik.coupled_lm_ik`: each round runs ``al_iters`` of its iterations with one-sided rows
 ``sqrt(rho) min(0, c(x) - s)`` per constraint ``c(x) >= 0`` (the shift ``s = lambda / rho`` is the
 multiplier, so rows exist only where a constraint is active and the block-tridiagonal system is
-kept), then updates ``s <- max(0, s - c(x))``; equalities (the anchor) ``s <- s + c(x)``. Frames
-farther than ``al_reach`` from every active constraint are held where the plain solve put them.
-Joint limits are the solver's projection; joint speed is the solver's coupled term and the
-feasibility pass after (:mod:`mer_models.retarget.feasible`) takes the rest exactly, as it lifts
-whatever the rounds left in the floor. Why this and not the penalty method: docs/decisions.md
-§Physics as constraints.
+kept), then updates ``s <- max(0, s - c(x))``; at most ``al_rounds`` updates, none once every
+constraint is met to :data:`TOLERANCE_M`. The rounds add a temporal prior on the *change* from the
+plain solution (``al_smooth`` times the solve's), so the change is smooth without pulling what the
+plain solve fitted, and hold frames farther than ``al_reach`` from every active constraint. The base
+is first raised where a foot is in the floor (a start the floor's linearisation holds from). Joint
+limits are the solver's projection; joint speed is the solver's coupled term and the feasibility
+pass after (:mod:`mer_models.retarget.feasible`) takes the rest exactly. What each choice measured:
+docs/decisions.md §Physics as constraints.
 """
 
 from __future__ import annotations

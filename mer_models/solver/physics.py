@@ -31,6 +31,8 @@ previous iterate, Jacobi-style, in both solvers. Weights are relative to ``Energ
 the defaults (floor, joint speed, the stance lock, feet apart and the self-penetration repair on;
 stance height, flat feet, anchors and swing off) and what each measured are in docs/decisions.md
 §Physical terms of the optimiser.
+``method`` "constraints" replaces all of that by the plain solve and then the least change that
+meets the requirements as constraints (:mod:`.constrained`; no goal edit, no repair round).
 Jacobians are analytic, the same form as the key points': a point ``p`` moving with node ``k``
 moves by ``a_j x (p - p_j)`` for every joint ``j`` at or above ``k``.
 """
