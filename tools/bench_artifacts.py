@@ -52,7 +52,8 @@ def _row(arts: list[dict], extra: dict) -> dict:
 
     return {"floor_frames": mean("floor_frames"), "floor_depth_max": max(a["floor_depth_max"] for a in arts),
             "skate_median": mean("skate_median"), "selfpen_1cm_frames": mean("selfpen_1cm_frames"),
-            "speed_frames": mean("speed_frames"), "floating_frames": mean("floating_frames"), **extra}  # fmt: skip
+            "speed_frames": mean("speed_frames"), "floating_frames": mean("floating_frames"), "body_floor_frames": mean("body_floor_frames"),
+            "hover_frames": mean("hover_frames"), "skate_share": mean("skate_share"), **extra}  # fmt: skip
 
 
 def main(argv=None) -> int:
@@ -65,26 +66,29 @@ def main(argv=None) -> int:
     p.add_argument("--end", type=int, default=1050)
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--json", help="also write every figure here")
-    p.add_argument("--methods", nargs="+", default=["optimize", "physics"], choices=["optimize", "physics"],
-                   help="mer's optimiser without its physical terms (mer retarget --no-physics) and with them (the default); "
-                        "both: each target's two runs back to back, and a per-clip g-mpbpe table")
+    p.add_argument("--windows", nargs="+", help="clip:first:last (0-based, last excluded), instead of --clips/--start/--end")
+    p.add_argument("--methods", nargs="+", default=["optimize", "physics"], choices=["optimize", "physics", "constraints"],
+                   help="mer's optimiser without its physical terms (mer retarget --no-physics), with them (the default, "
+                        "the penalty method) and with them as constraints (PhysicsConfig.method); each target's runs back to back, "
+                        "and a per-clip g-mpbpe table against the first")
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
     src = load_robot(args.source)
-    sl = slice(args.start, args.end)
+    windows = args.windows or [f"{c}:{args.start}:{args.end}" for c in args.clips]
     per_clip: dict[tuple[str, str], dict[str, float]] = {}
-    feats = {}
-    for clip in args.clips:
+    feats, slices = {}, {}
+    for w in windows:
+        clip, a, b = w.split(":")
         m = read_lafan1_csv(Path(args.input) / args.source / f"{clip}.csv", src)
         f = source_features(m.base_pos, m.base_quat, m.node_angles(src.skeleton), src.skeleton, FPS)
-        feats[clip] = f[sl]
+        feats[w], slices[w] = f[int(a) : int(b)], slice(int(a), int(b))
     rows = []
     for t in args.targets:
         robot = load_robot(t)
         geom = collision_model(robot)
         peer, peer_lim = [], []
         for mi, method in enumerate(args.methods):
-            physics = PhysicsConfig() if method == "physics" else None
+            physics = {"physics": PhysicsConfig(), "constraints": PhysicsConfig(method="constraints")}.get(method)
             label = f"mer {method}"
             arts, g, jerk, lim, frames, sec = [], [], [], [], 0, 0.0
             for clip, f in feats.items():
@@ -98,7 +102,7 @@ def main(argv=None) -> int:
                 per_clip.setdefault((t, clip), {})[method] = met["g_mpbpe"]
                 jerk.append(met["jerk_frame"])
                 lim.append(met["limit_violation"])
-                own = Path(args.input) / t / f"{clip}.csv"
+                own, sl = Path(args.input) / t / f"{clip.split(':')[0]}.csv", slices[clip]
                 if mi > 0 or not own.is_file() or t == args.source:
                     continue
                 u = read_lafan1_csv(own, robot)
@@ -113,12 +117,14 @@ def main(argv=None) -> int:
             rows.append({"target": t, "method": label, **_row(arts, {
                 "limit_violation": float(np.mean(lim)), "g_mpbpe": float(np.mean(g)), "jerk_frame": float(np.mean(jerk)),
                 "frames_per_s": frames / sec})})  # fmt: skip
+            if mi:
+                rows[-1]["fps_ratio"] = rows[-1]["frames_per_s"] / next(x["frames_per_s"] for x in rows if x["target"] == t and x["method"] == f"mer {args.methods[0]}")
             r = rows[-1]
             print(f"{t} {method}: {r['floor_frames']:.3f} below -1 cm, deepest {100 * r['floor_depth_max']:.1f} cm, "
                   f"{frames / sec:.0f} frames/s", file=sys.stderr)  # fmt: skip
-    head = (f"{'target':9s} {'method':13s} {'foot<-1cm':>9s} {'deepest':>8s} {'skate':>7s} {'selfpen':>8s} {'>v.lim':>7s}"
-            f" {'floating':>8s} {'limits':>7s} {'g-mpbpe':>8s} {'jerk':>8s} {'fr/s':>6s}")  # fmt: skip
-    print(f"G1 source, frames {args.start + 1}-{args.end} of {', '.join(args.clips)}; shares of frames; deepest [cm], "
+    head = (f"{'target':9s} {'method':15s} {'foot<-1cm':>9s} {'body<-1cm':>9s} {'deepest':>8s} {'skate':>7s} {'>5cm/s':>6s} {'hover':>6s} {'selfpen':>8s} {'>v.lim':>7s}"
+            f" {'floating':>8s} {'limits':>7s} {'g-mpbpe':>8s} {'jerk':>8s} {'fr/s':>6s} {'x':>5s}")  # fmt: skip
+    print(f"{args.source} source, windows {', '.join(windows)}; shares of frames; deepest [cm], "
           "skate: median in contact [cm/s]")  # fmt: skip
     print(head)
     for r in rows:
@@ -126,18 +132,19 @@ def main(argv=None) -> int:
             v = r.get(k, float("nan"))
             return f"{v * scale:{fmt}}" if np.isfinite(v) else "-"
 
-        print(f"{r['target']:9s} {r['method']:13s} {num('floor_frames'):>9s} {num('floor_depth_max', 100, '.1f'):>8s} "
-              f"{num('skate_median', 100, '.1f'):>7s} {num('selfpen_1cm_frames'):>8s} {num('speed_frames'):>7s} "
+        print(f"{r['target']:9s} {r['method']:15s} {num('floor_frames'):>9s} {num('body_floor_frames'):>9s} {num('floor_depth_max', 100, '.1f'):>8s} "
+              f"{num('skate_median', 100, '.1f'):>7s} {num('skate_share', 1, '.2f'):>6s} {num('hover_frames'):>6s} {num('selfpen_1cm_frames'):>8s} {num('speed_frames'):>7s} "
               f"{num('floating_frames'):>8s} {num('limit_violation'):>7s} {num('g_mpbpe', 1, '.4f'):>8s} "
-              f"{num('jerk_frame', 1, '.4f'):>8s} {num('frames_per_s', 1, '.0f'):>6s}")  # fmt: skip
-    if len(args.methods) == 2:
-        print("\ng-mpbpe with the physical terms / without, per clip")
-        print(f"{'target':9s} " + " ".join(f"{c[:12]:>12s}" for c in args.clips))
+              f"{num('jerk_frame', 1, '.4f'):>8s} {num('frames_per_s', 1, '.0f'):>6s} {num('fps_ratio', 1, '.2f'):>5s}")  # fmt: skip
+    first = args.methods[0]
+    for other in args.methods[1:]:
+        print(f"\ng-mpbpe of {other} / {first}, per window")
+        print(f"{'target':9s} " + " ".join(f"{c.split(':')[0][:12]:>12s}" for c in windows))
         for t in args.targets:
             cells = []
-            for c in args.clips:
+            for c in windows:
                 v = per_clip.get((t, c), {})
-                cells.append(f"{v['physics'] / v['optimize']:12.2f}" if len(v) == 2 and v["optimize"] > 0 else f"{'-':>12s}")
+                cells.append(f"{v[other] / v[first]:12.2f}" if other in v and v.get(first, 0) > 0 else f"{'-':>12s}")
             print(f"{t:9s} " + " ".join(cells))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)

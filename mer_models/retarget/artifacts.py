@@ -5,11 +5,15 @@ Per motion (docs/model.md §Evaluation), on the robot's collision polytopes
 
 * **floor**: ``floor_frames`` the share of frames in which a foot's lowest point is below
   -:data:`FLOOR_TOL` (1 cm); ``floor_depth_mean`` / ``floor_depth_max`` the mean (over those frames)
-  and largest depth [m]; ``body_floor_frames`` the same share for any body.
+  and largest depth [m]; ``body_floor_frames`` the same share for any body and
+  ``body_floor_depth_max`` its largest depth [m].
 * **skating**: the horizontal speed of each foot's lowest body-fixed point (the vertex lowest at
   frame t, followed to t + 1) over the frame pairs in which the foot is in contact (lowest point
   within :data:`CONTACT_BAND` = 2.5 cm of the floor at both frames): ``skate_median``,
   ``skate_p95`` [m/s], ``skate_share`` (share above 5 cm/s).
+* **hovering**: ``hover_frames`` the share of the source's foot-down samples (frame, foot) in which
+  the target's same foot has its lowest point higher than :data:`HOVER_TOL` (1 cm): a stance foot
+  that does not reach the floor.
 * **floating**: ``floating_frames`` the share of the frames in which the *source* has a foot down
   (:func:`mer_data.motion.contacts.foot_contacts`) where no body of the target is within 5 cm of
   the floor.
@@ -30,17 +34,18 @@ import torch
 
 from mer_data.kinematics.collision import pair_depths, shape_points
 
-__all__ = ["FLOOR_TOL", "CONTACT_BAND", "SKATE_TOL", "FLOAT_HEIGHT", "ARTIFACT_KEYS", "artifact_metrics"]
+__all__ = ["FLOOR_TOL", "CONTACT_BAND", "HOVER_TOL", "SKATE_TOL", "FLOAT_HEIGHT", "ARTIFACT_KEYS", "artifact_metrics"]
 
 FLOOR_TOL = 0.01  # [m] below the floor by more than this: penetration
 CONTACT_BAND = 0.025  # [m] a foot this close to the floor is in contact
+HOVER_TOL = 0.01  # [m] a stance foot's lowest point higher than this: hovering
 SKATE_TOL = 0.05  # [m/s] a contact foot faster than this skates
 FLOAT_HEIGHT = 0.05  # [m] no body this close to the floor: floating
 SELFPEN_TOL = 0.001  # [m] interpenetrating
 SELFPEN_DEEP = 0.01  # [m] deeply
 ARTIFACT_KEYS = (
     "floor_frames", "floor_depth_mean", "floor_depth_max", "body_floor_frames", "skate_median", "skate_p95",
-    "skate_share", "floating_frames", "selfpen_frames", "selfpen_1cm_frames", "selfpen_depth_max", "speed_frames",
+    "skate_share", "hover_frames", "body_floor_depth_max", "floating_frames", "selfpen_frames", "selfpen_1cm_frames", "selfpen_depth_max", "speed_frames",
     "speed_ratio_max",
 )  # fmt: skip
 
@@ -93,6 +98,7 @@ def artifact_metrics(
     else:
         out.update(floor_frames=_nan(), floor_depth_mean=_nan(), floor_depth_max=_nan())
     out["body_floor_frames"] = float((body_low < -FLOOR_TOL).double().mean())
+    out["body_floor_depth_max"] = float((-body_low).clamp_min(0).max())
     # skating: each foot's lowest body-fixed point, followed one frame
     speeds = []
     for f in feet:
@@ -111,6 +117,14 @@ def artifact_metrics(
         out["skate_share"] = float((sp_all > SKATE_TOL).double().mean())
     else:
         out.update(skate_median=_nan(), skate_p95=_nan(), skate_share=_nan())
+    # hovering: the source's foot down, the target's same foot up
+    sides = [torch.nonzero(foot == side).flatten() for side in (1, 2)]
+    out["hover_frames"] = _nan()
+    if source_contacts is not None and len(source_contacts) == F and all(len(f) for f in sides):
+        sc = torch.from_numpy(np.asarray(source_contacts, bool))
+        if bool(sc.any()):
+            lows = torch.stack([low_z[:, f].min(-1).values for f in sides], -1)  # (F, 2)
+            out["hover_frames"] = float((lows[sc] > HOVER_TOL).double().mean())
     # floating
     if source_contacts is not None and len(source_contacts) == F and bool(np.asarray(source_contacts).any()):
         down = torch.from_numpy(np.asarray(source_contacts, bool).any(1))

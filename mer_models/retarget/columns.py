@@ -36,6 +36,8 @@ METRIC_COLUMNS: tuple[Column, ...] = (
     Column("skate_median", "skate_median[m/s]", ".3f", "median horizontal speed of a foot in contact with the floor"),
     Column("selfpen_1cm_frames", "selfpen_1cm_frames", ".3f", "share of frames with two bodies more than 1 cm inside each other"),
     Column("speed_frames", "speed_frames", ".3f", "share of frame pairs with a joint faster than its URDF velocity limit"),
+    Column("body_floor_frames", "body_floor_frames", ".3f", "share of frames with any body more than 1 cm below the floor"),
+    Column("hover_frames", "hover_frames", ".3f", "share of the source's foot-down frames with the stance sole over 1 cm above the floor"),
 )
 
 

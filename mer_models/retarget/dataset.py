@@ -130,8 +130,8 @@ def _read(job: Job, source: Robot | str, target: Skeleton, fps: float, bvh=None)
 def _lock_stance(c: _Clip, src: Skeleton, geometry, physics) -> None:
     """The stance lock (``physics.lock_blend``) on the whole clip's goals, so that a stance phase
     cut by a segment boundary keeps one anchor (:meth:`mer_models.solver.physics.PhysicsInputs.lock_goals`)."""
-    if physics is None or geometry is None or physics.lock_blend < 0:
-        return
+    if physics is None or geometry is None or physics.lock_blend < 0 or physics.method == "constraints":
+        return  # (the constraint method edits no goal)
     from .clip import physics_inputs
 
     inputs = physics_inputs(c.feats, src, geometry, MODEL_FPS, physics)
@@ -461,5 +461,3 @@ def retarget_dataset(
     atomic_write(out_dir / "summary.json", json.dumps({**summary, "rows": all_rows}, indent=1) + "\n")
     return summary
 
-
-#: (key, header, format) of a retarget's metrics in the text tables (dataset summaries, one file's row).

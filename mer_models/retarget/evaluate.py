@@ -308,7 +308,8 @@ def evaluate(
 
 _COLS = (("g_mpbpe", "E_g-mpbpe [m]"), ("mpboe", "E_mpboe [rad]"), ("mpbve", "E_mpbve [m/s]"), ("jerk_frame", "E_smooth [rad/fr^3]"), ("ref_jerk_frame", "source jerk"), ("limit_violation", "limits"))
 _ART_COLS = (("floor_frames", "feet < -1 cm"), ("floor_depth_max", "deepest [m]"), ("skate_median", "skate med [m/s]"),
-             ("floating_frames", "floating"), ("selfpen_1cm_frames", "self-pen > 1 cm"), ("speed_frames", "over speed limit"))  # fmt: skip
+             ("floating_frames", "floating"), ("selfpen_1cm_frames", "self-pen > 1 cm"), ("speed_frames", "over speed limit"),
+             ("body_floor_frames", "any body < -1 cm"), ("hover_frames", "hovering"))  # fmt: skip
 _GT_COLS = (("gt_mpbpe", "vs data: pos [m]"), ("gt_mpboe", "orient [rad]"), ("gt_mpbve", "vel [m/s]"))
 
 

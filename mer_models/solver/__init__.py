@@ -5,5 +5,7 @@
 * :mod:`.optimize` - the whole-trajectory optimiser (``--method optimize``, ``--refine K``, the teacher);
 * :mod:`.limits` - the joint-limit parametrisation the optimiser and the model's output share;
 * :mod:`.tridiagonal` - the block-tridiagonal solve of whole windows;
-* :mod:`.physics` - the physical terms (floor, joint speed, stance feet, self-penetration).
+* :mod:`.physics` - the physical terms (floor, joint speed, stance feet, self-penetration), as penalties
+  (with :mod:`.goal_edits` and :mod:`.repair`; the default) or as constraints (:mod:`.constrained`,
+  with the stance foot's no-slip term :mod:`.stance`).
 """

@@ -365,6 +365,8 @@ def coupled_lm_ik(
     stats: dict | None = None,
     physics: Any = None,
     hold: torch.Tensor | None = None,
+    change_of: torch.Tensor | None = None,
+    change_smooth: float = 0.0,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Levenberg-Marquardt on a whole window at once: the temporal prior couples the frames exactly.
 
@@ -380,6 +382,8 @@ def coupled_lm_ik(
     Arguments and return as :func:`gauss_newton_ik`; ``stats["cost"]`` (B, T) splits each
     difference of the prior between its two frames. ``hold`` (B, T) bool: frames that stay where
     they are (their neighbours' prior still sees them: a repair of a few frames eases in and out).
+    ``change_of`` (B, T, J) angles and ``change_smooth``: a second temporal prior, of that weight
+    (relative to ``w_kp``), on the change from those angles (a smooth change of a solution).
     """
     B, T, J = q.shape
     P = _Problem(cfg, graph, eta, goal, q, goal_rot, rot_mask)
@@ -388,18 +392,24 @@ def coupled_lm_ik(
     w = P.dof_weight(smooth * cfg.w_kp)[:, 0] / 4 if T > 1 else P.zeros(B, D)  # (B, D) per difference
     reg, nominal = P.reg, P.nominal
     qd = P.columns(q)
+    ref = P.columns(change_of.to(P.dtype)) if change_of is not None and change_smooth > 0 and T > 1 else None
+    wc = P.dof_weight(change_smooth * cfg.w_kp)[:, 0] / 4 if ref is not None else P.zeros(B, D)
     neighbours = torch.full((T,), 2.0, dtype=P.dtype, device=P.dev)
     neighbours[0] = neighbours[-1] = 1.0 if T > 1 else 0.0
-    prior_h = torch.cat([reg + 2 * w[:, None] * neighbours[None, :, None], P.zeros(B, T, 6)], -1)  # (B, T, n)
-    coupling = torch.cat([-2 * w, P.zeros(B, 6)], -1)  # (B, n)
+    prior_h = torch.cat([reg + 2 * (w + wc)[:, None] * neighbours[None, :, None], P.zeros(B, T, 6)], -1)  # (B, T, n)
+    coupling = torch.cat([-2 * (w + wc), P.zeros(B, 6)], -1)  # (B, n)
 
     def frame_cost(fit, qd):
-        return fit + (reg * (qd - nominal) ** 2).sum(-1) + _velocity_prior(qd, w[:, None])
+        out = fit + (reg * (qd - nominal) ** 2).sum(-1) + _velocity_prior(qd, w[:, None])
+        return out if ref is None else out + _velocity_prior(qd - ref, wc[:, None])
 
     def prior_grad(qd):
         gq = reg * (qd - nominal)
         if T > 1:
             d = 2 * w[:, None] * (qd[:, 1:] - qd[:, :-1])  # (B, T-1, D): d/dq_{t+1} of each difference
+            if ref is not None:
+                dc = qd - ref
+                d = d + 2 * wc[:, None] * (dc[:, 1:] - dc[:, :-1])
             gq = gq + torch.cat([P.zeros(B, 1, D), d], 1) - torch.cat([d, P.zeros(B, 1, D)], 1)
         return torch.cat([gq, P.zeros(B, T, 6)], -1)
 
@@ -413,7 +423,7 @@ def coupled_lm_ik(
         h, g = P.linearise(pos, rot, kp, ocols)
         h.diagonal(dim1=-2, dim2=-1).add_(prior_h)
         g = g + prior_grad(qd)
-        c_speed = None
+        c_speed = dense = None
         if phys is not None:  # the physical terms, their coupled parts held at this iterate
             state = phys.freeze(pos, rot, qd)
             cost = frame_cost(fit, qd) + phys.cost(pos, rot, qd, state) + phys.speed_cost(qd, P.cols)
@@ -425,6 +435,10 @@ def coupled_lm_ik(
                 h.diagonal(dim1=-2, dim2=-1)[..., :D].add_(diag)
                 g = g + torch.cat([grad, P.zeros(B, T, 6)], -1)
                 c_speed = torch.cat([off, P.zeros(B, T - 1, 6)], -1)
+            dense = phys.coupled_terms(pos, rot, state)  # two-frame rows with dense blocks (a stance foot's no-slip)
+            if dense is not None:
+                h, g = h + dense[0], g + dense[2]
+                dense = dense[1]
         # active set: a joint at a limit that the gradient pushes further out stays where it is
         gq = g[..., :D]
         fixed = ((qd <= P.lower) & (gq > 0)) | ((qd >= P.upper) & (gq < 0))  # (B, T, D)
@@ -437,6 +451,8 @@ def coupled_lm_ik(
         g = g * free
         c = coupling[:, None] if c_speed is None else coupling[:, None] + c_speed
         c = c * free[:, 1:] * free[:, :-1]  # (B, T-1, n): a held joint is coupled to nothing
+        if dense is not None:
+            c = torch.diag_embed(c) + dense * free[:, 1:, :, None] * free[:, :-1, None, :]
         step, solved = block_tridiagonal_solve(P.damp(h, mu[:, None]), c, -g)
         qd_c, bp_c, br_c = P.candidate(qd, base_pos, base_rot, step)
         pos_c, rot_c, kp_c, ocols_c, fit_c = P.fit(qd_c, bp_c, br_c)

@@ -49,6 +49,7 @@ from mer_data.kinematics.rotations import axis_angle_to_matrix, matrix_to_quat, 
 from mer_models.batch import BatchGraph, batch_fk
 from mer_models.config import EnergyConfig
 
+from .constrained import constrain
 from .energy import energy_terms
 from .ik import DEFAULT_SMOOTH, DEFAULT_TOL, coupled_lm_ik, gauss_newton_ik
 from .limits import limit_clip, limit_logit
@@ -150,7 +151,10 @@ def optimize_motion(
     B, T = goal.shape[:2]
     J = graph.parents.shape[1]
     repair, goal_in = physics, goal
-    if physics is not None:
+    constrained = physics if physics is not None and physics.cfg.method == "constraints" else None
+    if constrained is not None:  # the plain solve first, then the least change that meets the constraints
+        physics = repair = None
+    elif physics is not None:
         goal = physics.separate_feet(physics.lock_goals(goal), ref_base_rot)
         physics = physics.main()
     lower, upper = graph.lower[:, None].expand(B, T, J), graph.upper[:, None].expand(B, T, J)
@@ -190,6 +194,9 @@ def optimize_motion(
                                                  stats=ik_stats, physics=physics, **gkw)  # fmt: skip
             if stats is not None:
                 stats["gn_iterations"] = ik_stats.get("iterations", 0)
+            if constrained is not None and smooth > 0:
+                with solver_stage("constraints"):
+                    q0, p0, r0 = constrain(cfg, graph, eta, goal, q0, p0, r0, physics=constrained, smooth=smooth, tol=tol, **gkw)
             rounds = repair.cfg.repair_rounds if repair is not None and repair.repairs and smooth > 0 else 0
             seen = moved = None
             for rnd in range(rounds):  # the self term, on the pairs the solve (or the last round) left interpenetrating

@@ -31,6 +31,8 @@ previous iterate, Jacobi-style, in both solvers. Weights are relative to ``Energ
 the defaults (floor, joint speed, the stance lock, feet apart and the self-penetration repair on;
 stance height, flat feet, anchors and swing off) and what each measured are in docs/decisions.md
 §Physical terms of the optimiser.
+``method`` "constraints" replaces all of that by the plain solve and then the least change that
+meets the requirements as constraints (:mod:`.constrained`; no goal edit, no repair round).
 Jacobians are analytic, the same form as the key points': a point ``p`` moving with node ``k``
 moves by ``a_j x (p - p_j)`` for every joint ``j`` at or above ``k``.
 """
@@ -41,10 +43,13 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
 import torch
 
-from mer_data.kinematics.collision import contact_points, pair_contacts, shape_points
+from mer_data.kinematics.collision import contact_points, pair_contacts
+
+from . import goal_edits, repair, stance
+from .goal_edits import phase_mean
+from .repair import SELF_POINTS
 
 __all__ = ["PhysicsConfig", "PhysicsInputs", "Physics"]
 
@@ -77,6 +82,19 @@ class PhysicsConfig:
     feet_gap: float = 0.02  # the feet's goals kept this far apart beyond the target's foot width [m] (-1: off; PhysicsInputs.separate_feet)
     fine_iters: int = 8  # at least this many iterations of the fine (whole-window) stage (0: the optimiser's own)
     feasible: bool = True  # after the solve: joint speed clamped, base lifted off the floor (mer_models.retarget.feasible)
+    method: str = "penalty"  # "penalty": the terms above (the default, measured); "constraints": the plain solve, then the least change that meets them (.constrained)
+    rho: float = 3.0  # constraints: the augmented Lagrangian's penalty weight, relative to w_kp
+    al_rounds: int = 6  # constraints: most multiplier updates (each after al_iters whole-window iterations)
+    al_iters: int = 4  # constraints: whole-window iterations per round
+    al_smooth: float = 48.0  # constraints: the temporal prior's weight in the rounds, relative to the solve's (a smooth change)
+    hover: float = 0.005  # constraints: a stance foot's lowest point at most this high [m] while the source's foot is down
+    al_reach: int = 4  # constraints: frames this far from an active constraint move with it; the rest are held
+    xy_weight: float = 1.0  # constraints: the stance anchor's weight, relative to rho (a penalty: its anchor moves each round)
+    stance_xy: bool = True  # constraints: a stance foot's node held at its phase's mean x, y (of the plain solution)
+
+    def __post_init__(self) -> None:
+        if self.method not in ("constraints", "penalty"):
+            raise ValueError(f"PhysicsConfig.method={self.method!r}: expected 'constraints' or 'penalty'")
 
 
 @dataclass(frozen=True)
@@ -99,6 +117,7 @@ class PhysicsInputs:
     ref_knees: tuple[int, int] = (-1, -1)  # the reference's knee nodes (-1: none)
     free: Any = None  # (B, T) bool: the frames a repair may move (None: all; :meth:`repair`)
     found: Any = None  # (B, T, K) bool, the whole batch: the (frame, pair) entries repairs found so far (:meth:`repair`)
+    al: Any = None  # the constraint method's round state (:mod:`.constrained`): shifts, fixed pair entries, anchors
 
     @classmethod
     def of_reference(cls, model: Any, contacts: torch.Tensor | None, fps: float, cfg: PhysicsConfig, ref: Any) -> "PhysicsInputs":
@@ -126,107 +145,20 @@ class PhysicsInputs:
 
     def repair(self, pos: torch.Tensor, rot: torch.Tensor, first: bool = True, seen: torch.Tensor | None = None,
                moved: torch.Tensor | None = None) -> tuple[torch.Tensor, "PhysicsInputs"] | None:  # fmt: skip
-        """The repair iterations' samples and terms for a solution with node poses ``pos`` (B, T, J, 3),
-        ``rot`` (B, T, J, 3, 3), or None when no sample needs one.
-
-        A frame needs it where a pair of bodies interpenetrates by more than ``cfg.repair_depth``,
-        or where a body other than a foot is lower than ``cfg.repair_touch`` (lying, kneeling: the
-        floor term switching on and off there kinks the motion, which the repair's stiffer temporal
-        prior smooths). Returns the samples with such a frame, (N,) indices, and their terms: the
-        self term on the pairs found (each looked for within ``cfg.repair_reach`` frames of where it
-        was found), and every frame farther than ``repair_reach`` from a found one held where it is
-        (:meth:`held_frames`). Each sample on its own: its result does not depend on the rest of the batch.
-
-        A later round (``first`` False) is triggered by pairs alone; ``seen`` (B, T, K) bool, the
-        (frame, pair) entries earlier rounds found, stay in its self term (else it would push those
-        pairs back together). The entries found so far are on the terms, as ``found``. ``moved``
-        (B, T) bool: the only frames that can have a new pair (the last round's free ones; the
-        rest are as that round found them, without any), the only ones searched.
-        """
-        from mer_data.kinematics.collision import lowest_points, pair_depths
-
-        if not self.repairs:
-            return None
-        B, T, K = pos.shape[0], pos.shape[1], len(self.model.pairs)
-        if self.cfg.w_self > 0 and K:
-            where = None if moved is None else moved.to(pos.device)[..., None].expand(B, T, K)
-            hit = pair_depths(self.model, pos, rot, which=SELF_POINTS, where=where) > self.cfg.repair_depth  # (B, T, K)
-        else:
-            hit = torch.zeros(B, T, K, dtype=torch.bool, device=pos.device)
-        frames = hit.any(-1)
-        body = torch.as_tensor(self.model.foot, device=pos.device) == 0
-        if first and self.cfg.repair_touch is not None and bool(body.any()):
-            frames = frames | (lowest_points(self.model, pos, rot)[0][..., body].amin(-1) < self.cfg.repair_touch)
-        rows = frames.any(1).nonzero().flatten()
-        if not len(rows):
-            return None
-        both = hit if seen is None else hit | seen
-        any_pair = both[rows].any((0, 1))
-        contacts = None if self.contacts is None else self.contacts[rows.to(self.contacts.device)]
-        pairs = torch.as_tensor(self.model.pairs, device=pos.device).reshape(-1, 2)[any_pair]
-        mask = both[rows][..., any_pair]  # (N, T, K'): where each pair was found
-        free = frames[rows]  # (N, T)
-        if self.cfg.repair_reach >= 0:  # widened by repair_reach frames
-            mask, free = _widen(mask, self.cfg.repair_reach), _widen(free[..., None], self.cfg.repair_reach)[..., 0]
-        else:
-            mask, free = mask.any(1), torch.ones_like(free)
-        return rows, dataclasses.replace(self, contacts=contacts, pairs=pairs, pair_mask=mask, free=free, found=both)
+        """The penalty method's repair terms (:func:`.repair.repair`)."""
+        return repair.repair(self, pos, rot, first, seen, moved)
 
     def held_frames(self) -> torch.Tensor | None:
-        """(B, T) bool: the frames a repair leaves where they are (farther than ``cfg.repair_reach``
-        frames from any it found interpenetrating); None: none held."""
-        return None if self.free is None else ~torch.as_tensor(self.free)
+        """(B, T) bool: the frames a repair leaves where they are (:func:`.repair.held_frames`)."""
+        return repair.held_frames(self)
 
     def lock_goals(self, goal: torch.Tensor) -> torch.Tensor:
-        """The position goals (B, T, Jr, 3) with each stance foot's sole points (``ref_feet``: the
-        reference's ankle and toe nodes) held at their stance phase's mean x, y, blended in and out
-        over ``cfg.lock_blend`` frames: the goals of a planted foot do not slide."""
-        if self.contacts is None or self.cfg.lock_blend < 0:
-            return goal
-        out = goal.clone()
-        for i, nodes in enumerate(self.ref_feet):
-            if not nodes:
-                continue
-            down = self.contacts[..., i].to(goal.device)
-            w = self.cfg.lock_weight * _blend(down, self.cfg.lock_blend).to(goal.dtype)[..., None]  # (B, T, 1)
-            for n in nodes:
-                xy = goal[:, :, n, :2]
-                out[:, :, n, :2] = w * _anchor(xy, down) + (1 - w) * xy
-        return out
+        """The stance lock on position goals (B, T, Jr, 3) (:func:`.goal_edits.lock_goals`)."""
+        return goal_edits.lock_goals(self, goal)
 
     def separate_feet(self, goal: torch.Tensor, heading: torch.Tensor) -> torch.Tensor:
-        """The position goals (B, T, Jr, 3) with the feet at least the target's foot width apart.
-
-        Per frame, in the heading frame of ``heading`` (B, T, 3, 3) (the reference base's x axis
-        in the floor plane): where the two ankles' goals are side by side (closer along the heading
-        than the target's foot length) and closer across it than the target's foot width plus
-        ``cfg.feet_gap``, each foot's sole goals move out by half the shortfall (the knees by a
-        quarter). Segment scaling keeps a source's leg adduction, so a robot with wide feet on a
-        narrow pelvis (TALOS, Valkyrie) would otherwise be asked to put one foot through the other.
-        """
-        width, length = foot_extent(self.model)
-        (lf, rf), (lk, rk) = self.ref_feet, self.ref_knees
-        if self.cfg.feet_gap < 0 or not lf or not rf or width <= 0:
-            return goal
-        fwd = heading[..., :, 0].clone()
-        fwd[..., 2] = 0
-        fwd = fwd / fwd.norm(dim=-1, keepdim=True).clamp_min(1e-9)
-        lat = torch.stack([-fwd[..., 1], fwd[..., 0], torch.zeros_like(fwd[..., 0])], -1)  # z x forward: to the left
-        d = goal[:, :, lf[0]] - goal[:, :, rf[0]]
-        sep, along = (d * lat).sum(-1), (d * fwd).sum(-1)
-        side = ((length - along.abs()) / (0.25 * length)).clamp(0, 1)  # 1: side by side, 0: one ahead of the other
-        push = (0.5 * (width + self.cfg.feet_gap - sep)).clamp_min(0) * side  # (B, T)
-        if not bool((push > 0).any()):
-            return goal
-        out = goal.clone()
-        step = push[..., None] * lat
-        for nodes, sign in ((lf, 1.0), (rf, -1.0)):
-            for n in nodes:
-                out[:, :, n] += sign * step
-        for n, sign in ((lk, 1.0), (rk, -1.0)):
-            if n >= 0:
-                out[:, :, n] += 0.5 * sign * step
-        return out
+        """The feet's goals kept apart (:func:`.goal_edits.separate_feet`)."""
+        return goal_edits.separate_feet(self, goal, heading)
 
     def build(self, problem: Any, w_kp: float) -> "Physics":
         """The terms for a solver's problem (:class:`mer_models.solver.ik._Problem`)."""
@@ -235,65 +167,11 @@ class PhysicsInputs:
         g = problem.graph
         contacts = None if self.contacts is None else self.contacts.to(problem.dev)
         return Physics(self.cfg, w_kp, self.model, contacts, problem.fold, ancestors(g.parents), g.axes.to(problem.dtype), self.fps,
-                       pairs=self.pairs, pair_mask=self.pair_mask)  # fmt: skip
-
-
-def foot_extent(model: Any) -> tuple[float, float]:
-    """The target's foot width and length [m]: the widest foot's collision vertices across and
-    along the root frame's y and x at the zero pose (node frames are root-aligned there); 0 without feet."""
-    foot = np.asarray(model.foot)
-    width = length = 0.0
-    for side in (1, 2):
-        shapes = np.flatnonzero(foot == side)
-        if not len(shapes):
-            continue
-        v = np.concatenate([np.asarray(model.vertices[s]) for s in shapes])
-        v = v[np.isfinite(v).all(1)]
-        if len(v):
-            width, length = max(width, float(np.ptp(v[:, 1]))), max(length, float(np.ptp(v[:, 0])))
-    return width, length
+                       pairs=self.pairs, pair_mask=self.pair_mask, al=self.al)  # fmt: skip
 
 
 SELF_REACH_M = 0.05  # pairs further apart than this at a solve's first iterate are not looked at in it
-SELF_POINTS = "sat"  # the solver's self-penetration depth: the separating-axis one (mer_data.kinematics.collision)
 FLOOR_VERTICES = 4  # per shape, the lowest this many vertices are held above the floor
-
-
-def _widen(mask: torch.Tensor, r: int) -> torch.Tensor:
-    """(N, T, K) bool, each (n, k) series widened by ``r`` frames either way."""
-    n, T, k = mask.shape
-    if not mask.numel():
-        return mask
-    wide = torch.nn.functional.max_pool1d(mask.permute(0, 2, 1).reshape(n * k, 1, T).float(), 2 * r + 1, 1, r)
-    return wide.reshape(n, k, T).permute(0, 2, 1) > 0
-
-
-def _blend(down: torch.Tensor, k: int) -> torch.Tensor:
-    """(B, T) weight: 1 in the middle of a stance phase, easing to 0 over ``k`` frames at its ends."""
-    if k <= 0:
-        return down.float()
-    x = down.float()
-    T = x.shape[1]
-    dist = torch.full_like(x, float(k))  # frames to the nearest non-stance frame, capped at k
-    for d in range(1, k + 1):
-        left = torch.cat([torch.zeros_like(x[:, :d]), x[:, :-d]], 1) if d < T else torch.zeros_like(x)
-        right = torch.cat([x[:, d:], torch.zeros_like(x[:, :d])], 1) if d < T else torch.zeros_like(x)
-        edge = (left == 0) | (right == 0)
-        dist = torch.where(edge & (dist == k), torch.full_like(x, float(d - 1)), dist)
-    t = (dist + 1) / (k + 1)
-    return x * (t * t * (3 - 2 * t))
-
-
-def _anchor(xy: torch.Tensor, down: torch.Tensor) -> torch.Tensor:
-    """Mean x, y of each stance phase, per frame: xy (B, T, 2), down (B, T) → (B, T, 2)."""
-    B, T = down.shape
-    start = down & torch.cat([torch.ones_like(down[:, :1]), ~down[:, :-1]], 1)
-    seg = torch.cumsum(start.long(), 1) * down.long()  # 0 outside stance, 1.. per phase
-    n = int(seg.max()) + 1 if seg.numel() else 1
-    sums = torch.zeros(B, n, 2, dtype=xy.dtype, device=xy.device).scatter_add_(1, seg[..., None].expand(B, T, 2), xy * down[..., None])
-    counts = torch.zeros(B, n, dtype=xy.dtype, device=xy.device).scatter_add_(1, seg, down.to(xy.dtype))
-    mean = sums / counts.clamp_min(1)[..., None]
-    return torch.gather(mean, 1, seg[..., None].expand(B, T, 2))
 
 
 class Physics:
@@ -310,8 +188,8 @@ class Physics:
     """
 
     def __init__(self, cfg: PhysicsConfig, w_kp: float, model: Any, contacts: torch.Tensor | None, fold: torch.Tensor,
-                 anc: torch.Tensor, axes: torch.Tensor, fps: float = 30.0, pairs: Any = None, pair_mask: Any = None) -> None:  # fmt: skip
-        self.cfg, self.model, self.fps, self.w_kp = cfg, model, fps, w_kp
+                 anc: torch.Tensor, axes: torch.Tensor, fps: float = 30.0, pairs: Any = None, pair_mask: Any = None, al: dict | None = None) -> None:  # fmt: skip
+        self.cfg, self.model, self.fps, self.w_kp, self.al = cfg, model, fps, w_kp, al
         dev = fold.device
         # the self term's pairs (None: those near at the first iterate) and which of them each sample looks at
         self._near_pairs = None if pairs is None else torch.as_tensor(pairs, device=dev).reshape(-1, 2)
@@ -339,6 +217,11 @@ class Physics:
     def freeze(self, pos: torch.Tensor, rot: torch.Tensor, qd: torch.Tensor) -> dict:
         """What the coupled terms hold fixed in an iteration: the stance anchors."""
         state: dict = {}
+        if self.al is not None:  # the constraint method: entries and anchors fixed for a round
+            state["self"] = self.al["entries"]
+            state["anchor"] = self.al["anchor"]
+            state["slip"] = self.al.get("slip")
+            return state
         if self.cfg.w_self > 0:
             if self._near_pairs is None:  # the pairs within reach anywhere in the batch at the first iterate
                 from mer_data.kinematics.collision import pair_depths
@@ -352,7 +235,7 @@ class Physics:
                                   pairs=self._near_pairs, which=SELF_POINTS, mask=self._pair_mask) if len(self._near_pairs) else None  # fmt: skip
             state["self"] = None if found is None else found[0]  # the (frame, pair) entries of this iteration
         if self.contacts is not None:
-            state["anchor"] = [_anchor(pos[:, :, n, :2], self.contacts[..., i]) if n >= 0 else None
+            state["anchor"] = [phase_mean(pos[:, :, n, :2], self.contacts[..., i]) if n >= 0 else None
                                for i, n in enumerate(self.foot_node)]  # fmt: skip
         return state
 
@@ -369,7 +252,9 @@ class Physics:
         # floor: the FLOOR_VERTICES lowest vertices of every shape whose bounding sphere reaches the floor (one
         # vertex alone would let a step tip the shape onto another corner)
         centre = torch.einsum("btsij,sj->btsi", rot[:, :, self.node], self.center) + pos[:, :, self.node]
-        bi, ti, si = (centre[..., 2] - self.radius < 0).nonzero(as_tuple=True)
+        al = self.al or {}
+        fs = al.get("floor")  # (B, T, S) the constraint method's shifts: held at or above them
+        bi, ti, si = (centre[..., 2] - self.radius < (0 if fs is None else fs)).nonzero(as_tuple=True)
         kz = pos.new_zeros(B, T, S, k)
         kp = pos.new_zeros(B, T, S, k, 3)
         if len(bi):
@@ -380,35 +265,49 @@ class Physics:
         nodes.append(self.node[:, None].expand(S, k).expand(B, T, S, k).reshape(B, T, S * k))
         points.append(kp.reshape(B, T, S * k, 3))
         dirs.append(ez.expand(B, T, S * k, 3))
+        if fs is not None:
+            kz = kz - fs[..., None]
         kz = kz.reshape(B, T, S * k)
         res.append(self.sw["w_floor"] * kz.clamp_max(0))
         jws.append(self.sw["w_floor"] * (kz < 0).to(dtype))
         col_nodes, col_dirs, col_res, col_w = [], [], [], []
         if self.contacts is not None and self.feet_on:
-            verts = shape_points(self.model, pos, rot, "vertices")  # (B, T, S, V, 3)
-            low_z, low_v = verts[..., 2].min(-1)  # (B, T, S)
-            low_p = torch.gather(verts, 3, low_v[..., None, None].expand(B, T, S, 1, 3))[..., 0, :]  # (B, T, S, 3)
+            fs = torch.cat(self.feet)  # the feet's shapes only
+            verts = torch.einsum("btsij,svj->btsvi", rot[:, :, self.node[fs]], self.verts[fs]) + pos[:, :, self.node[fs], None]
+            low_z, low_v = verts[..., 2].min(-1)  # (B, T, F)
+            low_p = torch.gather(verts, 3, low_v[..., None, None].expand(*low_v.shape, 1, 3))[..., 0, :]  # (B, T, F, 3)
+            at = 0
             for i, f in enumerate(self.feet):
                 if not len(f):
                     continue
                 down = self.contacts[..., i].to(dtype)  # (B, T)
-                z, k = low_z[..., f].min(-1)
+                z, k = low_z[..., at : at + len(f)].min(-1)
                 s = f[k]
+                k = k + at
+                at += len(f)
                 nodes.append(self.node[s][..., None])
-                points.append(torch.gather(low_p, 2, s[..., None, None].expand(B, T, 1, 3)))
+                points.append(torch.gather(low_p, 2, k[..., None, None].expand(B, T, 1, 3)))
                 dirs.append(ez.expand(B, T, 1, 3))
                 low = (z < c.swing_clearance).to(dtype) * (1 - down)
-                r = self.sw["w_stance"] * z * down + self.sw["w_swing"] * (z - c.swing_clearance) * low
-                res.append(r[..., None])
-                jws.append((self.sw["w_stance"] * down + self.sw["w_swing"] * low)[..., None])
+                if "stance_z" in al:  # the constraint: at most `hover` up (the floor holds it from below)
+                    up = (z - c.hover + al["stance_z"][..., i]).clamp_min(0) * down
+                    res.append((self.sw["w_stance"] * up)[..., None])
+                    jws.append((self.sw["w_stance"] * (up > 0).to(dtype))[..., None])
+                else:
+                    r = self.sw["w_stance"] * z * down + self.sw["w_swing"] * (z - c.swing_clearance) * low
+                    res.append(r[..., None])
+                    jws.append((self.sw["w_stance"] * down + self.sw["w_swing"] * low)[..., None])
                 n = self.foot_node[i]
+                if state.get("anchor") is None or state["anchor"][i] is None:
+                    continue
                 for axis in range(2):  # stay put: the foot node's x, y at its stance phase's mean
                     e = torch.zeros(3, dtype=dtype, device=dev)
                     e[axis] = 1
                     nodes.append(torch.full((B, T, 1), n, device=dev))
                     points.append(pos[:, :, n : n + 1])
                     dirs.append(e.expand(B, T, 1, 3))
-                    res.append((self.sw["w_anchor"] * (pos[:, :, n, axis] - state["anchor"][i][..., axis]) * down)[..., None])
+                    off = pos[:, :, n, axis] - state["anchor"][i][..., axis] + (al["stance_xy"][..., i, axis] if "stance_xy" in al else 0)
+                    res.append((self.sw["w_anchor"] * off * down)[..., None])
                     jws.append((self.sw["w_anchor"] * down)[..., None])
                     col_nodes.append(n)
                     col_dirs.append(e)
@@ -416,9 +315,12 @@ class Physics:
                     col_w.append(self.sw["w_flat"] * down)
         # self-penetration: the deepest points
         entries = state.get("self")  # the contacts found at this iteration's start, measured at this pose
-        ca = contact_points(self.model, pos, rot, entries, c.max_contacts, SELF_POINTS) if c.w_self > 0 and entries is not None else None
+        slots = al["slots"] if "slots" in al else c.max_contacts
+        ca = contact_points(self.model, pos, rot, entries, slots, SELF_POINTS) if c.w_self > 0 and entries is not None else None
         if ca is not None:
             depth, pt, normal, na, nb = ca  # (B, T, K) ...
+            if "self" in al:
+                depth = depth + al["self"]
             active = (depth > -c.self_margin).to(dtype)
             depth = torch.where(active > 0, depth, torch.zeros_like(depth))  # padding is -inf
             nodes.append(torch.stack([na, nb], -1))  # rows with two bodies: handled via the 'other' node
@@ -434,7 +336,13 @@ class Physics:
         out = sum((r**2).sum(-1) for r in res)
         for r in col_res:
             out = out + r**2
+        if state.get("slip") is not None:
+            out = out + stance.slip_cost(self, pos, rot, state["slip"])
         return out
+
+    def coupled_terms(self, pos: torch.Tensor, rot: torch.Tensor, state: dict):
+        """The stance no-slip term's Gauss-Newton parts (:func:`.stance.slip_terms`), or None."""
+        return None if state.get("slip") is None else stance.slip_terms(self, pos, rot, state["slip"])
 
     def linearise(self, pos: torch.Tensor, rot: torch.Tensor, qd: torch.Tensor, state: dict) -> tuple[torch.Tensor, torch.Tensor]:
         """The terms' Gauss-Newton normal equations: ``J^T J`` (B, T, n, n) and ``J^T r`` (B, T, n)."""

@@ -21,14 +21,15 @@ def block_tridiagonal_solve(a: torch.Tensor, c: torch.Tensor, b: torch.Tensor) -
 
     Args:
         a: (B, T, n, n) symmetric positive definite diagonal blocks; c: (B, T-1, n) the diagonal
-            blocks coupling frames t and t+1; b: (B, T, n).
+            blocks coupling frames t and t+1, or (B, T-1, n, n) dense ones (row t+1's block on
+            x_t; row t's on x_{t+1} is its transpose); b: (B, T, n).
 
     Returns:
         x (B, T, n) and (B,) bool: every factorisation of that sample was positive definite
         (where not, its x is zero).
     """
     B, T, n = b.shape
-    low = torch.zeros(B, T, n, dtype=a.dtype, device=a.device)  # low[:, t]: the diagonal of row t's block on x_{t-1}
+    low = torch.zeros(B, T, *c.shape[2:], dtype=a.dtype, device=a.device)  # low[:, t]: row t's block on x_{t-1} (its diagonal)
     if T > 1:
         low[:, 1:] = c
     ok = torch.ones(B, dtype=torch.bool, device=a.device)

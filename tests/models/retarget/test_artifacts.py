@@ -56,6 +56,26 @@ def test_sinking_sliding_and_floating_are_measured():
     assert a["floating_frames"] == 1.0 and np.isnan(a["skate_median"])  # no foot near the floor: no contact
 
 
+def test_hovering_and_any_body_in_the_floor_are_measured():
+    """The source's left foot down all along, the right one for the first half: standing 3 mm up,
+    nothing hovers; 2 cm up, every one of those samples hovers; 5 cm into the floor, any body is."""
+    r, m, q, base, rot = _standing("h1")
+    contacts = np.zeros((60, 2), bool)
+    contacts[:, 0] = True
+    contacts[:30, 1] = True
+    a = artifact_metrics(q, *_fk(r, q, base, rot), 30.0, m, r.skeleton.urdf_joint_names, contacts)
+    assert a["hover_frames"] == 0.0 and a["body_floor_frames"] == 0.0 and a["body_floor_depth_max"] == 0.0
+    up = base.copy()
+    up[:45, 2] += 0.02  # the first 45 frames: 45 left and 30 right of the 90 foot-down samples
+    a = artifact_metrics(q, *_fk(r, q, up, rot), 30.0, m, r.skeleton.urdf_joint_names, contacts)
+    assert a["hover_frames"] == pytest.approx((45 + 30) / 90)
+    down = base.copy()
+    down[:, 2] -= 0.053
+    a = artifact_metrics(q, *_fk(r, q, down, rot), 30.0, m, r.skeleton.urdf_joint_names, contacts)
+    assert a["body_floor_frames"] == 1.0 and a["body_floor_depth_max"] == pytest.approx(0.05, abs=1e-6)
+    assert np.isnan(artifact_metrics(q, *_fk(r, q, base, rot), 30.0, m, r.skeleton.urdf_joint_names, None)["hover_frames"])
+
+
 def _fk(r, q, base, rot):
     from mer_data.kinematics.fk import fk_skeleton, skeleton_tensors
 

@@ -14,8 +14,9 @@ from mer_data.robots.collision import collision_model
 from mer_data.robots.registry import load_robot
 from mer_models.batch import graph_from_batch
 from mer_models.config import EnergyConfig
+from mer_models.solver.goal_edits import blend as _blend
 from mer_models.solver.ik import _Problem
-from mer_models.solver.physics import PhysicsConfig, PhysicsInputs, _blend
+from mer_models.solver.physics import PhysicsConfig, PhysicsInputs
 
 
 def _problem(name: str, T: int, seed: int):

@@ -1,0 +1,156 @@
+"""Physics as constraints: the least change to the unconstrained solution that makes it physical.
+
+``PhysicsConfig.method`` "constraints". The optimiser first solves the plain problem (key points,
+orientations, nominal pose, temporal prior: the paper's energy, no goal edit); :func:`constrain`
+then minimises the same energy subject to
+
+* **floor**: every collision shape's lowest vertex at or above z = 0 (every body, not only feet);
+* **self-penetration**: every checked pair of bodies (:mod:`mer_data.robots.collision`) apart by
+  ``self_margin`` along its separating axis (the depth that bounds the metric's from above);
+* **stance**: while the source's foot is down, the foot's lowest point at most ``hover`` above the
+  floor, and (``stance_xy``) its lowest body-fixed point not sliding from one frame to the next
+  (:mod:`.stance`, a penalty of weight ``rho * xy_weight``: its point is re-chosen each round);
+
+by an augmented Lagrangian around the whole-window Levenberg-Marquardt of
+:func:`~.ik.coupled_lm_ik`: each round runs ``al_iters`` of its iterations with one-sided rows
+``sqrt(rho) min(0, c(x) - s)`` per constraint ``c(x) >= 0`` (the shift ``s = lambda / rho`` is the
+multiplier, so rows exist only where a constraint is active and the block-tridiagonal system is
+kept), then updates ``s <- max(0, s - c(x))``; at most ``al_rounds`` updates, none once every
+constraint is met to :data:`TOLERANCE_M`. The rounds add a temporal prior on the *change* from the
+plain solution (``al_smooth`` times the solve's), so the change is smooth without pulling what the
+plain solve fitted, and hold frames farther than ``al_reach`` from every active constraint. The base
+is first raised where a foot is in the floor (a start the floor's linearisation holds from). Joint
+limits are the solver's projection; joint speed is the solver's coupled term and the feasibility
+pass after (:mod:`mer_models.retarget.feasible`) takes the rest exactly. What each choice measured:
+docs/decisions.md §Physics as constraints.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import torch
+
+from mer_data.kinematics.collision import lowest_points, pair_depths
+from mer_models.batch import batch_fk
+
+from .ik import coupled_lm_ik
+from .repair import SELF_POINTS, widen
+from .stance import lowest_foot_points
+
+__all__ = ["constrain", "NEAR_M", "TOLERANCE_M"]
+
+NEAR_M = 0.002  # pairs closer than self_margin + this are in a round's self rows (active or not)
+TOLERANCE_M = 0.002  # a constraint met to within this [m] needs no further round
+SLIDE_TOL_M = 0.0015  # a stance foot's material point slower than this per frame [m] needs no further round
+
+
+def _foot_nodes(model: Any, dev: torch.device) -> tuple[list[torch.Tensor], list[int]]:
+    """Each foot's shapes (left, right) and the node carrying most of it (-1: no such foot)."""
+    foot, node = torch.as_tensor(model.foot, device=dev), torch.as_tensor(model.node, device=dev)
+    shapes = [torch.nonzero(foot == s).flatten() for s in (1, 2)]
+    return shapes, [int(torch.mode(node[f]).values) if len(f) else -1 for f in shapes]
+
+
+def _slide(model: Any, pos: torch.Tensor, rot: torch.Tensor, shape: torch.Tensor, vert: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """(B, T-1) the largest horizontal step [m] of a stance foot's material point (shape, vertex (B, T, 2)) from
+    frame t to t + 1 where ``mask`` (B, T-1, 2)."""
+    node = torch.as_tensor(model.node, device=pos.device)[shape[:, :-1]]  # (B, T-1, 2)
+    local = torch.as_tensor(model.vertices, dtype=pos.dtype, device=pos.device)[shape[:, :-1], vert[:, :-1]]  # (B, T-1, 2, 3)
+    B, T1 = node.shape[:2]
+    bi = torch.arange(B, device=pos.device)[:, None, None]
+    ti = torch.arange(T1, device=pos.device)[None, :, None]
+    pa = torch.einsum("btfij,btfj->btfi", rot[bi, ti, node], local) + pos[bi, ti, node]
+    pb = torch.einsum("btfij,btfj->btfi", rot[bi, ti + 1, node], local) + pos[bi, ti + 1, node]
+    return ((pb - pa)[..., :2].norm(dim=-1) * mask).amax(-1)
+
+
+def _entries(known: torch.Tensor, pairs: torch.Tensor, shift: torch.Tensor):
+    """(B, T, K) bool entries → the ``(b, t, slot, shape_a, shape_b)`` layout of
+    :func:`mer_data.kinematics.collision.contact_points`, its slot count, and the shifts per slot."""
+    B, T, _ = known.shape
+    bi, ti, ki = known.nonzero(as_tuple=True)
+    if not len(bi):
+        return None, 1, shift.new_zeros(B, T, 1)
+    slot = (known.long().cumsum(-1) - 1)[bi, ti, ki]
+    K = int(slot.max()) + 1
+    per_slot = shift.new_zeros(B, T, K)
+    per_slot[bi, ti, slot] = shift[bi, ti, ki]
+    return (bi, ti, slot, pairs[ki, 0], pairs[ki, 1]), K, per_slot
+
+
+@torch.no_grad()
+def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: torch.Tensor, base_pos: torch.Tensor,
+              base_rot: torch.Tensor, *, physics: Any, smooth: float, tol: float, goal_rot: torch.Tensor | None = None,
+              rot_mask: torch.Tensor | None = None, stats: dict | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:  # fmt: skip
+    """The least change (in the energy ``cfg``) to the solution ``q`` (B, T, J), ``base_pos`` (B, T, 3),
+    ``base_rot`` (B, T, 3, 3) that meets the physical constraints of ``physics`` (a
+    :class:`~.physics.PhysicsInputs`; module docstring). Arguments as :func:`~.ik.coupled_lm_ik`;
+    ``stats`` receives ``rounds`` (multiplier updates run) and ``violation`` (B,) the largest left [m]."""
+    c = physics.cfg
+    model = physics.model
+    B, T = q.shape[:2]
+    dev, dt = q.device, q.dtype
+    S = len(model.node)
+    pairs = torch.as_tensor(model.pairs, device=dev).reshape(-1, 2) if c.w_self > 0 else torch.zeros(0, 2, dtype=torch.long, device=dev)
+    Kp = len(pairs)
+    contacts = None if physics.contacts is None else torch.as_tensor(physics.contacts, device=dev)
+    feet, foot_node = _foot_nodes(model, dev)
+    has_feet = contacts is not None and any(len(f) for f in feet)
+    terms_cfg = dataclasses.replace(c, w_floor=c.rho, w_self=c.rho if Kp else 0.0, w_stance=c.rho if has_feet else 0.0,
+                                    w_anchor=0.0, w_flat=0.0, w_swing=0.0)  # fmt: skip
+    pos, rot = batch_fk(graph, q, base_pos, base_rot)
+    plain = q
+    low0 = lowest_points(model, pos, rot)[0]
+    sole = torch.cat(feet) if any(len(f) for f in feet) else torch.arange(S, device=dev)
+    need = (-low0[..., sole].amin(-1)).clamp_min(0)  # (B, T): the base lifted first where a foot is in the floor
+    if bool((need > 0).any()):  # (a start the floor's linearisation holds from; the rounds then take back what they can)
+        base_pos = base_pos.clone()
+        base_pos[..., 2] += need
+        pos = pos.clone()
+        pos[..., 2] += need[..., None]
+    down = contacts.to(dt) if has_feet else q.new_zeros(B, T, 2)
+    s_floor, s_self = q.new_zeros(B, T, S), q.new_zeros(B, T, Kp)
+    s_z = q.new_zeros(B, T, 2)
+    known = torch.zeros(B, T, Kp, dtype=torch.bool, device=dev)
+    search = torch.ones(B, T, dtype=torch.bool, device=dev)
+    rounds, worst = 0, q.new_zeros(B)
+    for rnd in range(c.al_rounds + 1):
+        low = lowest_points(model, pos, rot)[0]  # (B, T, S)
+        d = q.new_zeros(B, T, 0)
+        if Kp:
+            where = (search[..., None] | known) if rnd else None
+            d = pair_depths(model, pos, rot, margin=c.self_margin + NEAR_M, which=SELF_POINTS, where=where) + c.self_margin
+            known |= d > -NEAR_M
+        foot_z = torch.stack([low[..., f].amin(-1) if len(f) else low.new_full((B, T), float("inf")) for f in feet], -1)
+        up = (foot_z - c.hover) * down  # (B, T, 2) > 0: hovering
+        slip, slide = None, q.new_zeros(B, T)
+        if has_feet and c.stance_xy and T > 1:  # this round's material points: each stance foot's lowest vertex
+            shape, vert = lowest_foot_points(model, pos, rot, feet)
+            mask = contacts[:, 1:] & contacts[:, :-1]  # (B, T-1, 2)
+            slip = {"shape": shape, "vert": vert, "mask": mask, "w": c.rho * c.xy_weight * cfg.w_kp}
+            slide[:, :-1] = _slide(model, pos, rot, shape, vert, mask)
+        if rnd:  # multiplier updates
+            s_floor = (s_floor - low).clamp_min(0)
+            s_self = torch.where(known, (s_self + d).clamp_min(0), torch.zeros_like(s_self))
+            s_z = (s_z + up).clamp_min(0) * down
+        viol = torch.stack([(-low).amax(-1), d.amax(-1) if Kp else q.new_zeros(B, T), up.amax(-1), slide], -1)
+        viol[..., 3] = torch.where(viol[..., 3] > SLIDE_TOL_M, viol[..., 3], torch.zeros_like(viol[..., 3]))
+        worst = viol.clamp_min(0).amax((1, 2))
+        if rnd == c.al_rounds or not bool((viol > TOLERANCE_M).any()):
+            break
+        active = (viol > 0).any(-1) | (s_floor > 0).any(-1) | (s_self > 0).any(-1) | (s_z > 0).any(-1)
+        if slip is not None:
+            active |= contacts.any(-1)
+        free = widen(active[..., None], c.al_reach)[..., 0] if c.al_reach >= 0 else torch.ones_like(active)
+        entries, slots, s_slot = _entries(known, pairs, s_self)
+        al = {"floor": s_floor, "entries": entries, "slots": slots, "self": s_slot, "stance_z": s_z, "anchor": [None, None], "slip": slip}
+        terms = dataclasses.replace(physics, cfg=terms_cfg, al=al, pairs=None, pair_mask=None)
+        q, base_pos, base_rot = coupled_lm_ik(cfg, graph, eta, goal, q, base_pos, base_rot, iters=c.al_iters, smooth=smooth, tol=tol, change_of=plain, change_smooth=smooth * c.al_smooth,
+                                              physics=terms, hold=~free, goal_rot=goal_rot, rot_mask=rot_mask)  # fmt: skip
+        pos, rot = batch_fk(graph, q, base_pos, base_rot)
+        search, rounds = free, rnd + 1
+    if stats is not None:
+        stats["rounds"], stats["violation"] = rounds, worst
+    return q, base_pos, base_rot
