@@ -42,7 +42,9 @@ BINOMIAL = (1.0, 4.0, 6.0, 4.0, 1.0)
 
 
 def _t(a: Any, like: torch.Tensor) -> torch.Tensor:
-    return torch.as_tensor(a, dtype=like.dtype, device=like.device)
+    if isinstance(a, torch.Tensor):
+        return a.to(dtype=like.dtype, device=like.device)
+    return torch.tensor(a, dtype=like.dtype, device=like.device)  # a copy: the model's arrays are read-only
 
 
 def _pad_edges(x: torch.Tensor, n: int) -> torch.Tensor:
