@@ -103,16 +103,23 @@ class BodyWrenches(NamedTuple):
     com: torch.Tensor
 
 
-def body_wrenches(model: Any, pos: torch.Tensor, rot: torch.Tensor, fps: float, filtered: bool = True) -> BodyWrenches:
-    """Each node's demanded force and moment (module docstring), smoothed unless ``filtered=False``."""
+def body_wrenches(model: Any, pos: torch.Tensor, rot: torch.Tensor, fps: float, filtered: bool = True,
+                  spin: bool = True) -> BodyWrenches:  # fmt: skip
+    """Each node's demanded force and moment (module docstring), smoothed unless ``filtered=False``.
+
+    ``spin=False`` leaves out the bodies' own spin momentum rates ``N_i`` (their centres of mass still
+    count): every frame then depends on its two neighbours only (a solver's three-frame coupling)."""
     if pos.shape[0] < 2 * EDGE + 1:
         raise ValueError(f"the dynamics need at least {2 * EDGE + 1} frames, got {pos.shape[0]}")
     m, x, inertia = _world(model, pos, rot)
     acc = _pad_edges((x[2:] - 2 * x[1:-1] + x[:-2]) * fps**2, 1)
     g = _t([0.0, 0.0, -GRAVITY], pos)
     force = m[:, None] * (acc - g)
-    h = (inertia @ _angular_velocity(rot, fps)[..., None])[..., 0]
-    moment = _pad_edges((h[3:-1] - h[1:-3]) * (fps / 2), EDGE)  # h at 0 and F-1 repeats its neighbour's
+    if spin:
+        h = (inertia @ _angular_velocity(rot, fps)[..., None])[..., 0]
+        moment = _pad_edges((h[3:-1] - h[1:-3]) * (fps / 2), EDGE)  # h at 0 and F-1 repeats its neighbour's
+    else:
+        moment = torch.zeros_like(force)
     if filtered:
         force, moment = smooth(force), smooth(moment)
     return BodyWrenches(force, moment, x)
