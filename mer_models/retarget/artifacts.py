@@ -171,6 +171,8 @@ def motion_artifacts(
     model: Any,
     reference: np.ndarray | None = None,
     ref_skel: Any = None,
+    masses: Any = None,
+    torques: bool = False,
 ) -> dict[str, Any]:
     """:func:`artifact_metrics` of a motion given as angles and base pose (FK done here).
 
@@ -178,6 +180,8 @@ def motion_artifacts(
         q: (F, J) node angles [rad] of ``skel`` (extra padded columns are dropped); base_pos (F, 3)
             [m]; base_rot (F, 3, 3).
         reference: (F, Jr, 9) source features of ``ref_skel`` (world frame), for the source's contacts.
+        masses: the robot's :class:`~mer_data.robots.inertia.MassModel`: adds the balance metrics
+            (:func:`mer_models.retarget.balance.balance_metrics`; the joint torques with ``torques``).
     """
     from mer_data.kinematics.fk import fk_skeleton, skeleton_tensors
     from mer_data.motion.contacts import foot_contacts
@@ -191,4 +195,9 @@ def motion_artifacts(
     if reference is not None and ref_skel is not None:
         ref_pos = split_features(torch.from_numpy(np.asarray(reference, np.float64)))["pos"].numpy()
         contacts = foot_contacts(ref_pos, ref_skel, fps)
-    return artifact_metrics(qq.numpy(), pos.numpy(), rot.numpy(), fps, model, skel.urdf_joint_names, contacts)
+    out = artifact_metrics(qq.numpy(), pos.numpy(), rot.numpy(), fps, model, skel.urdf_joint_names, contacts)
+    if masses is not None and len(qq) >= 5:
+        from .balance import balance_metrics
+
+        out.update(balance_metrics(pos.numpy(), rot.numpy(), fps, skel, masses, model, torques=torques))
+    return out

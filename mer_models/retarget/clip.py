@@ -362,8 +362,10 @@ def retarget_file(
     check_motion_finite(res.motion, out_csv or npz or mcap or plot or video)  # all outputs or none
     if metrics:
         from mer_data.robots.collision import collision_model
+        from mer_data.robots.inertia import mass_model
 
-        res.metrics = sequence_metrics(feats, skel, res.motion, prepared=res.prepared, geometry=collision_model(tgt_robot))
+        res.metrics = sequence_metrics(feats, skel, res.motion, prepared=res.prepared, geometry=collision_model(tgt_robot),
+                                       masses=mass_model(tgt_robot))
     if out_csv is not None:
         res.outputs["csv"] = write_csv(out_csv, res.motion, robot=tgt_robot)
     if npz is not None:
@@ -384,7 +386,8 @@ def retarget_file(
 
 
 def sequence_metrics(
-    reference: np.ndarray, source: Skeleton, motion: TargetMotion, *, prepared: tuple | None = None, geometry=None
+    reference: np.ndarray, source: Skeleton, motion: TargetMotion, *, prepared: tuple | None = None, geometry=None,
+    masses=None, torques: bool = False,
 ) -> dict[str, float]:
     """The paper's metrics (:func:`mer_models.retarget.metrics.window_metrics`) of a whole retargeted motion.
 
@@ -394,7 +397,8 @@ def sequence_metrics(
         prepared: :func:`~mer_models.retarget.long_horizon.prepare_reference` of ``reference`` for this
             target, when the caller has it (saves computing the goals again).
         geometry: the target's :class:`~mer_data.robots.collision.CollisionModel`: adds the artifact
-            metrics (:func:`mer_models.retarget.artifacts.artifact_metrics`).
+            metrics (:func:`mer_models.retarget.artifacts.artifact_metrics`); with ``masses`` (the target's
+            :class:`~mer_data.robots.inertia.MassModel`) the balance metrics too (:mod:`.balance`).
 
     Returns:
         metric name -> value over the whole motion (``g_mpbpe`` [m], ``mpboe`` [rad], ``mpbve`` [m/s],
@@ -417,5 +421,6 @@ def sequence_metrics(
     if geometry is not None:
         from .artifacts import motion_artifacts
 
-        metrics.update(motion_artifacts(motion.q, motion.base_pos, motion.base_rot, motion.fps, tgt, geometry, reference, source))
+        metrics.update(motion_artifacts(motion.q, motion.base_pos, motion.base_rot, motion.fps, tgt, geometry, reference, source,
+                                        masses=masses, torques=torques))
     return metrics

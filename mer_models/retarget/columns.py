@@ -38,6 +38,8 @@ METRIC_COLUMNS: tuple[Column, ...] = (
     Column("speed_frames", "speed_frames", ".3f", "share of frame pairs with a joint faster than its URDF velocity limit"),
     Column("body_floor_frames", "body_floor_frames", ".3f", "share of frames with any body more than 1 cm below the floor"),
     Column("hover_frames", "hover_frames", ".3f", "share of the source's foot-down frames with the stance sole over 1 cm above the floor"),
+    Column("balance_infeasible", "balance_infeasible", ".3f", "share of contact frames whose demanded contact wrench the floor cannot supply"),
+    Column("zmp_out_single", "zmp_out_single", ".3f", "share of single-support frames with the ZMP over 2 cm outside the stance foot"),
 )
 
 

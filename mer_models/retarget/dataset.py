@@ -49,6 +49,7 @@ from mer_data.kinematics.jointmap import joint_map
 from mer_data.kinematics.rotations import axis_angle_to_matrix
 from mer_data.motion.samples import TrainingSample, collate
 from mer_data.robots.collision import collision_model
+from mer_data.robots.inertia import mass_model
 from mer_data.robots.registry import Robot, as_robot
 from mer_data.skeleton import Skeleton
 from mer_models.batch import graph_from_batch
@@ -58,6 +59,7 @@ from mer_models.solver.optimize import optimize_motion
 from mer_models.zoo.checkpoint import Checkpoint
 
 from .artifacts import ARTIFACT_KEYS
+from .balance import BALANCE_KEYS
 from .clip import MODEL_FPS, model_label, retarget_features_many, sequence_metrics
 from .columns import format_summary
 from .jobs import Job, find_bvh_clips, find_clips, plan_jobs
@@ -69,7 +71,8 @@ log = logging.getLogger(__name__)
 __all__ = ["FORMATS", "Job", "find_clips", "find_bvh_clips", "plan_jobs", "retarget_dataset", "format_summary"]
 
 FORMATS = ("csv", "npz")
-SUMMARY_KEYS = ("g_mpbpe", "mpboe", "mpbve", "jerk_frame", "limit_violation", *ARTIFACT_KEYS, "selfpen_worst", "speed_worst")
+SUMMARY_KEYS = ("g_mpbpe", "mpboe", "mpbve", "jerk_frame", "limit_violation", *ARTIFACT_KEYS, *BALANCE_KEYS, "selfpen_worst",
+                "speed_worst")
 
 
 @dataclass(eq=False)
@@ -207,7 +210,8 @@ def _write(job: Job, target: Robot, motion: TargetMotion, world_feats: np.ndarra
         write_csv(job.output("csv"), motion, robot=target)
     if "npz" in formats:
         write_npz(job.output("npz"), motion, tracker=npz_for, fps=npz_fps, robot=target)
-    metrics = sequence_metrics(world_feats, src, motion, prepared=prepared, geometry=collision_model(target))
+    metrics = sequence_metrics(world_feats, src, motion, prepared=prepared, geometry=collision_model(target),
+                               masses=mass_model(target))
     row = {"clip": job.clip, "target": job.target, "frames": motion.num_frames, "method": method, "seconds": round(seconds, 3),
            **{k: _finite_or_none(metrics.get(k)) for k in SUMMARY_KEYS}}  # fmt: skip
     atomic_write(job.output("metrics"), json.dumps(row, indent=1) + "\n")

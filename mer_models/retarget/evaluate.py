@@ -26,12 +26,14 @@ from mer_data.base.errors import MerError
 from mer_data.kinematics.jointmap import joint_map
 from mer_data.motion.samples import TrainingSample, collate
 from mer_data.robots.collision import collision_model
+from mer_data.robots.inertia import mass_model
 from mer_data.robots.registry import Robot, as_robot
 from mer_models.config import EnergyConfig, SamplerConfig
 from mer_models.solver.optimize import DEFAULT_GN_ITERS, DEFAULT_ITERS
 from mer_models.zoo.checkpoint import Checkpoint, check_robot
 
 from .artifacts import ARTIFACT_KEYS, motion_artifacts
+from .balance import BALANCE_KEYS
 from .inference import model_batch, optimize_batch
 from .metrics import summarize, window_metrics
 
@@ -199,13 +201,15 @@ def _batches(windows: list[dict], size: int) -> list[tuple[int, int]]:
     return out
 
 
-def _window_artifacts(motion: dict, batch: dict, tgt, geometry, windows: list[dict]) -> dict[str, np.ndarray]:
-    """The artifact metrics (:mod:`.artifacts`) of every window of a batch: key → (B,)."""
-    out: dict[str, list[float]] = {k: [] for k in ARTIFACT_KEYS}
+def _window_artifacts(motion: dict, batch: dict, tgt, geometry, windows: list[dict], masses=None) -> dict[str, np.ndarray]:
+    """The artifact metrics (:mod:`.artifacts`; with ``masses`` the balance metrics, :mod:`.balance`,
+    without joint torques) of every window of a batch: key → (B,)."""
+    keys = ARTIFACT_KEYS + (tuple(k for k in BALANCE_KEYS if not k.startswith("torque")) if masses is not None else ())
+    out: dict[str, list[float]] = {k: [] for k in keys}
     q, bp, br = (motion[k].detach().double().cpu().numpy() for k in ("q", "base_pos", "base_rot"))
     for b, x in enumerate(windows):
-        a = motion_artifacts(q[b], bp[b], br[b], WINDOW_FPS, tgt, geometry, x["reference"], x["skeleton"])
-        for k in ARTIFACT_KEYS:
+        a = motion_artifacts(q[b], bp[b], br[b], WINDOW_FPS, tgt, geometry, x["reference"], x["skeleton"], masses=masses)
+        for k in keys:
             out[k].append(a[k])
     return {k: np.asarray(v, np.float64) for k, v in out.items()}
 
@@ -287,7 +291,7 @@ def evaluate(
                     for k, v in window_metrics(motion, batch, keypoints={"base": 0, **tgt.keypoints}, joints=_joints(tgt)).items():
                         vals.setdefault(k, []).append(v)
                     if geometry is not None and opts.artifacts:
-                        for k, v in _window_artifacts(motion, batch, tgt, geometry, w[a:b]).items():
+                        for k, v in _window_artifacts(motion, batch, tgt, geometry, w[a:b], mass_model(tgt_robots[target])).items():
                             vals.setdefault(k, []).append(v)
                 summary = summarize({k: np.concatenate(v) for k, v in vals.items()})
                 row = {"robot": target, "domain": dom, "method": method, "windows": len(w), "seconds": round(sec, 2),
@@ -309,7 +313,8 @@ def evaluate(
 _COLS = (("g_mpbpe", "E_g-mpbpe [m]"), ("mpboe", "E_mpboe [rad]"), ("mpbve", "E_mpbve [m/s]"), ("jerk_frame", "E_smooth [rad/fr^3]"), ("ref_jerk_frame", "source jerk"), ("limit_violation", "limits"))
 _ART_COLS = (("floor_frames", "feet < -1 cm"), ("floor_depth_max", "deepest [m]"), ("skate_median", "skate med [m/s]"),
              ("floating_frames", "floating"), ("selfpen_1cm_frames", "self-pen > 1 cm"), ("speed_frames", "over speed limit"),
-             ("body_floor_frames", "any body < -1 cm"), ("hover_frames", "hovering"))  # fmt: skip
+             ("body_floor_frames", "any body < -1 cm"), ("hover_frames", "hovering"), ("balance_infeasible", "infeasible"),
+             ("zmp_out_single", "ZMP out, 1 foot"), ("zmp_out_double", "ZMP out, 2+"))  # fmt: skip
 _GT_COLS = (("gt_mpbpe", "vs data: pos [m]"), ("gt_mpboe", "orient [rad]"), ("gt_mpbve", "vel [m/s]"))
 
 
