@@ -156,8 +156,8 @@ def disk_full_as_error(path: str | Path, need: int | None = None) -> Iterator[No
     a refused write (read-only, permission, a file in the way) :class:`OutputPathError` (:func:`~.outputs.os_refusal`)."""
     try:
         yield
-    except DiskFullError:
-        raise
+    except (DiskFullError, FileExistsError):  # O_EXCL and no-replace renames: the caller's own answer (a lock held,
+        raise  # a name taken meanwhile); one left to the command line becomes OutputPathError there
     except (OSError, RuntimeError) as exc:
         if is_disk_full(exc):
             raise disk_full(path, need) from None
