@@ -64,10 +64,10 @@ def write_120hz(path: Path, out_dir: Path) -> Path:
     return out
 
 
-def measure(path: Path, robot, model) -> dict:
+def measure(path: Path, robot, model, physics) -> dict:
     src = read_source(path, human_kind(path, None))
     feats = src.features()
-    res = retarget_features(feats, src.skeleton, robot.skeleton, method="optimize", physics=PhysicsConfig(), geometry=[model])
+    res = retarget_features(feats, src.skeleton, robot.skeleton, method="optimize", physics=physics, geometry=[model])
     pos, rot = res.motion.forward_kinematics()
     pos_t, rot_t = torch.from_numpy(np.asarray(pos, np.float64)), torch.from_numpy(np.asarray(rot, np.float64))
     F = pos_t.shape[0]
@@ -116,7 +116,7 @@ def measure(path: Path, robot, model) -> dict:
     return out
 
 
-def table(files: list[Path], targets: list[str], label: str) -> None:
+def table(files: list[Path], targets: list[str], label: str, physics) -> None:
     print(f"\n{label}: {len(files)} clips")
     print(f"{'target':8s} {'skate med[cm/s]':>15s} {'human toe[cm/s]':>15s} {'ratio':>6s} {'>5cm/s':>7s} {'sole<=1cm':>9s} "
           f"{'floor<-1cm':>10s} {'limits':>7s} {'speed':>7s} {'s':>6s}")  # fmt: skip
@@ -126,7 +126,7 @@ def table(files: list[Path], targets: list[str], label: str) -> None:
         agg = {"skate": [], "human": [], "sole": [], "floor": 0, "limits": 0, "speed": 0, "frames": 0}
         t0 = time.perf_counter()
         for f in files:
-            m = measure(f, robot, model)
+            m = measure(f, robot, model, physics)
             for k in ("skate", "human", "sole"):
                 agg[k] += m[k]
             for k in ("floor", "limits", "speed", "frames"):
@@ -145,15 +145,21 @@ def main() -> None:
     ap.add_argument("folder")
     ap.add_argument("--targets", nargs="+", default=["g1", "h1"])
     ap.add_argument("--every", type=int, default=1, help="every N-th clip (a subset first: the whole set is long)")
+    ap.add_argument("--physics", choices=["default", "penalty", "constraints"], default="default",
+                    help="the physical terms: the default command's for a human source, or a method named")
     ap.add_argument("--hz120", metavar="TMPDIR", help="also measure a 120 Hz copy of each BVH written there")
     a = ap.parse_args()
     torch.set_num_threads(1)
     files = sorted(p for p in Path(a.folder).iterdir() if p.suffix.lower() in (".bvh", ".npz", ".npy"))[:: a.every]
-    table(files, a.targets, f"{a.folder}")
+    from mer_models.retarget.clip import human_physics
+
+    physics = human_physics() if a.physics == "default" else PhysicsConfig(method=a.physics)
+    print(f"physics: {physics.method}", flush=True)
+    table(files, a.targets, f"{a.folder}", physics)
     if a.hz120:
         out = Path(a.hz120)
         out.mkdir(parents=True, exist_ok=True)
-        table([write_120hz(f, out) for f in files if f.suffix.lower() == ".bvh"], a.targets, f"{a.folder} at 120 Hz")
+        table([write_120hz(f, out) for f in files if f.suffix.lower() == ".bvh"], a.targets, f"{a.folder} at 120 Hz", physics)
 
 
 if __name__ == "__main__":
