@@ -132,3 +132,30 @@ def test_a_joint_position_folder_mixing_layouts_builds(tmp_path):
     assert {c: s.name for c, s in names.items()} == {"m0": "joints", "m1": "joints", "m2": "joints-2"}
     assert names["m2"].num_nodes > names["m0"].num_nodes  # the 24-joint layout keeps its hands
     _same_as_retarget(ds, d, "joints", cfg.human_options())
+
+
+def test_retarget_and_evaluate_take_a_folder_mixing_genders_per_clip(tmp_path, capsys):
+    """`mer retarget --input DIR --source smpl --workers 2` and `mer evaluate` on a folder of a female
+    and a male clip: each clip on its own body (the body model of its gender), none refused."""
+    import json
+
+    from mer_models.cli import main
+
+    models = tmp_path / "models"
+    build_body_model(models / "smplh" / "SMPLH_FEMALE.npz", "smplh", seed=1)
+    build_body_model(models / "smplh" / "SMPLH_MALE.npz", "smplh", seed=2)
+    d = tmp_path / "in"
+    d.mkdir()
+    for k, gender in enumerate(("female", "male")):
+        trans = np.zeros((62, 3))
+        trans[:, 2] = 0.9
+        np.savez(d / f"c{k}.npz", poses=random_poses(62, 52, seed=k, scale=0.15)[:, :156], trans=trans, betas=np.zeros(16),
+                 gender=np.array(gender), mocap_framerate=np.array(30.0))  # fmt: skip
+    bm = ["--body-model", str(models), "--no-physics"]
+    assert main(["retarget", "--input", str(d), "--source", "smpl", "--targets", "g1", "--out", str(tmp_path / "ds"),
+                 "--workers", "2", "--quiet", *bm]) == 0  # fmt: skip
+    for k in range(2):
+        assert json.loads((tmp_path / "ds" / "g1" / f"c{k}.metrics.json").read_text())["frames"] == 62
+    assert main(["evaluate", "--input", str(d), "--source", "smpl", "--targets", "g1", "--split", "all", "--stride", "30",
+                 "--save", str(tmp_path / "eval.json"), *bm]) == 0  # fmt: skip
+    assert json.loads((tmp_path / "eval.json").read_text())
