@@ -58,6 +58,9 @@ def test_bvh_is_built_alone_and_from_a_folder(tmp_path):
         build_shards(BuildConfig(input=str(_folder(tmp_path)), robots=("bvh", "g1"), targets=("g1",), split="all"), tmp_path / "o")
     with pytest.raises(MerError, match="no BVH files"):
         build_shards(BuildConfig(input=str(tmp_path), robots=("bvh",), targets=("g1",), split="all"), tmp_path / "o2")
+    for folder in (tmp_path / "in", tmp_path / "in" / "bvh"):  # a BVH folder given as a robot's: the fix says --robots bvh
+        with pytest.raises(MerError, match="fix: for human motion give --robots bvh"):
+            build_shards(BuildConfig(input=str(folder), robots=("g1",), targets=("h1",), split="all"), tmp_path / "o3")
 
 
 def test_the_bandai_folder_builds(bandai, tmp_path):
