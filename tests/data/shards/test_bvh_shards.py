@@ -113,6 +113,9 @@ def test_an_smpl_folder_mixing_genders_builds_one_reference_per_body(tmp_path):
     names = {ds[i].provenance["clip"]: ds[i].reference_skeleton.name for i in range(len(ds))}
     assert names == {"c0": "smpl", "c1": "smpl-2", "c2": "smpl"}  # the female clips share a body, the male one has its own
     _same_as_retarget(ds, d, "smpl", cfg.human_options())
+    card = (tmp_path / "out" / "README.md").read_text()
+    assert "license: other" in card and "human motion (smpl, smpl-2)" in card and "LAFAN1" not in card
+    assert str(models) not in card  # a local path stays local
     with pytest.raises(MerError, match="body model"):  # no model: refused naming what to give, nothing built
         build_shards(BuildConfig(input=str(d), robots=("smpl",), targets=("g1",), split="all"), tmp_path / "none")
     assert not (tmp_path / "none").exists() or not any((tmp_path / "none").glob("*.h5"))
