@@ -1,8 +1,9 @@
 """The feet of human sources on robots (issue 49): a table of what a tracker needs from the stance feet.
 
 Retargets every human clip of a folder (BVH, SMPL .npz, joint .npy; the file's kind from its
-content) to each target with the default command's path (the optimiser with its physical terms,
-the robot's collision geometry), then measures, on the robot's collision polytopes (floor z = 0)
+content) to each target with the default command's path (the optimiser with a human source's
+physical terms, :func:`mer_models.retarget.clip.human_physics`, and the robot's collision geometry;
+``--physics penalty|constraints`` for a method's own defaults), then measures, on the robot's collision polytopes (floor z = 0)
 and in the frames where the *human's* foot of the same side is down
 (:func:`mer_data.motion.contacts.foot_contacts` on the source):
 
