@@ -28,8 +28,10 @@ class BuildConfig:
     """What ``mer shards build`` builds.
 
     Attributes:
-        input: a folder holding ``<robot>/<clip>.csv[.gz]``, or ``hf://REPO_ID[@REVISION]``.
-        robots: source robots (each needs ``lafan1_columns`` in its card).
+        input: a folder holding ``<robot>/<clip>.csv[.gz]``, or ``hf://REPO_ID[@REVISION]``; human
+            files: a folder of them (``<kind>/*`` or ``*``, :func:`mer_data.motion.sources.human_files`).
+        robots: source robots (each needs ``lafan1_columns`` in its card), or one human kind alone:
+            ``("bvh",)``, ``("smpl",)``, ``("joints",)`` (one reference per body, :mod:`mer_data.shards.humans`).
         format: ``"hdf5"`` or ``"mcap"``.
         window: frames per window (at ``out_fps``).
         stride: frames between window starts, 1..window; ``None`` = ``window`` (non-overlapping

@@ -15,9 +15,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse._SubParsersAction:
     p = sub.add_parser("shards", help="build and inspect training shards (LAFAN1 robot CSVs -> HDF5/MCAP)")
     ss = p.add_subparsers(dest="shards_cmd", required=True, metavar="{build,inspect,card,push,solve}")
 
-    b = ss.add_parser("build", help="build training shards from robot motion CSVs or synthetic motion")
+    b = ss.add_parser("build", help="build training shards from robot motion CSVs, human motion (BVH, SMPL .npz, joint positions) or synthetic motion")
     src = b.add_mutually_exclusive_group(required=True)
-    src.add_argument("--input", metavar="DIR|hf://REPO_ID", help="folder with ROBOT/*.csv[.gz], or a Hub dataset (hf://OWNER/NAME[@REV])")
+    src.add_argument("--input", metavar="DIR|hf://REPO_ID", help="folder with ROBOT/*.csv[.gz] (or human files: KIND/* or *), or a Hub dataset (hf://OWNER/NAME[@REV])")
     src.add_argument("--synthetic", type=int, metavar="N", help="N clips of synthetic motion per robot instead (any registered robot; no data needed)")
     b.add_argument("--synthetic-seconds", type=float, default=20.0, metavar="S", help="seconds per synthetic clip (default 20)")
     b.add_argument("--synthetic-seed", type=int, default=0, metavar="S", help="seed of the synthetic motion (default 0)")
