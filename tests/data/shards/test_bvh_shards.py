@@ -158,6 +158,10 @@ def test_retarget_and_evaluate_take_a_folder_mixing_genders_per_clip(tmp_path, c
         np.savez(d / f"c{k}.npz", poses=random_poses(62, 52, seed=k, scale=0.15)[:, :156], trans=trans, betas=np.zeros(16),
                  gender=np.array(gender), mocap_framerate=np.array(30.0))  # fmt: skip
     bm = ["--body-model", str(models), "--no-physics"]
+    capsys.readouterr()
+    assert main(["retarget", "--input", str(d), "--source", "smpl", "--targets", "g1", "--out", str(tmp_path / "m"), "--refine", "1",
+                 *bm]) == 1  # a model option is refused up front for any human kind, nothing written  # fmt: skip
+    assert "a model cannot retarget a human source" in capsys.readouterr().err and not (tmp_path / "m").exists()
     assert main(["retarget", "--input", str(d), "--source", "smpl", "--targets", "g1", "--out", str(tmp_path / "ds"),
                  "--workers", "2", "--quiet", *bm]) == 0  # fmt: skip
     for k in range(2):
