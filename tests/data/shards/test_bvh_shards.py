@@ -138,6 +138,11 @@ def test_a_joint_position_folder_mixing_layouts_builds(tmp_path):
     assert {c: s.name for c, s in names.items()} == {"m0": "joints", "m1": "joints", "m2": "joints-2"}
     assert names["m2"].num_nodes > names["m0"].num_nodes  # the 24-joint layout keeps its hands
     _same_as_retarget(ds, d, "joints", cfg.human_options())
+    (d / "m3.npy").write_bytes(b"\x93NUMPY garbage")  # a clip that cannot be read: named, or recorded with keep_going
+    with pytest.raises(MerError, match="m3.npy"):
+        build_shards(cfg, tmp_path / "out2")
+    report = build_shards(cfg, tmp_path / "out3", keep_going=True)
+    assert [f["clip"] for f in report.failed] == ["m3"] and report.windows == 6
 
 
 def test_retarget_and_evaluate_take_a_folder_mixing_genders_per_clip(tmp_path, capsys):
