@@ -1,8 +1,9 @@
 """The feet of human sources on robots (issue 49): a table of what a tracker needs from the stance feet.
 
 Retargets every human clip of a folder (BVH, SMPL .npz, joint .npy; the file's kind from its
-content) to each target with the default command's path (the optimiser with its physical terms,
-the robot's collision geometry), then measures, on the robot's collision polytopes (floor z = 0)
+content) to each target with the default command's path (the optimiser with a human source's
+physical terms, :func:`mer_models.retarget.clip.human_physics`, and the robot's collision geometry;
+``--physics penalty|constraints`` for a method's own defaults), then measures, on the robot's collision polytopes (floor z = 0)
 and in the frames where the *human's* foot of the same side is down
 (:func:`mer_data.motion.contacts.foot_contacts` on the source):
 
@@ -18,6 +19,9 @@ and in the frames where the *human's* foot of the same side is down
 Usage (nice it, it is long: a few seconds per clip and target on 2 cores)::
 
     nice -n 10 python tools/human_feet.py ../shared/data/bvh/bandai1 --targets g1 h1 [--every 10] [--hz120 TMPDIR]
+
+``--accuracy`` instead prints the key-point error (g-mpbpe against the human scaled to the robot),
+jerk and time of the penalty terms and of a human source's physics, in one run.
 
 ``--hz120 TMPDIR`` also writes a 120 Hz copy of each BVH there (channels linearly interpolated,
 angles unwrapped first; a temporary folder, never committed) and measures it too.
@@ -64,10 +68,10 @@ def write_120hz(path: Path, out_dir: Path) -> Path:
     return out
 
 
-def measure(path: Path, robot, model) -> dict:
+def measure(path: Path, robot, model, physics) -> dict:
     src = read_source(path, human_kind(path, None))
     feats = src.features()
-    res = retarget_features(feats, src.skeleton, robot.skeleton, method="optimize", physics=PhysicsConfig(), geometry=[model])
+    res = retarget_features(feats, src.skeleton, robot.skeleton, method="optimize", physics=physics, geometry=[model])
     pos, rot = res.motion.forward_kinematics()
     pos_t, rot_t = torch.from_numpy(np.asarray(pos, np.float64)), torch.from_numpy(np.asarray(rot, np.float64))
     F = pos_t.shape[0]
@@ -116,7 +120,7 @@ def measure(path: Path, robot, model) -> dict:
     return out
 
 
-def table(files: list[Path], targets: list[str], label: str) -> None:
+def table(files: list[Path], targets: list[str], label: str, physics) -> None:
     print(f"\n{label}: {len(files)} clips")
     print(f"{'target':8s} {'skate med[cm/s]':>15s} {'human toe[cm/s]':>15s} {'ratio':>6s} {'>5cm/s':>7s} {'sole<=1cm':>9s} "
           f"{'floor<-1cm':>10s} {'limits':>7s} {'speed':>7s} {'s':>6s}")  # fmt: skip
@@ -126,7 +130,7 @@ def table(files: list[Path], targets: list[str], label: str) -> None:
         agg = {"skate": [], "human": [], "sole": [], "floor": 0, "limits": 0, "speed": 0, "frames": 0}
         t0 = time.perf_counter()
         for f in files:
-            m = measure(f, robot, model)
+            m = measure(f, robot, model, physics)
             for k in ("skate", "human", "sole"):
                 agg[k] += m[k]
             for k in ("floor", "limits", "speed", "frames"):
@@ -140,20 +144,56 @@ def table(files: list[Path], targets: list[str], label: str) -> None:
               f"{agg['speed'] / agg['frames']:7.2%} {time.perf_counter() - t0:6.0f}", flush=True)  # fmt: skip
 
 
+def accuracy(files: list[Path], targets: list[str]) -> None:
+    """g-mpbpe (key points against the human scaled to the robot) [mm], jerk and time of the penalty
+    terms against a human source's physics, both in this run."""
+    from mer_data.kinematics.jointmap import joint_map
+    from mer_models.retarget.clip import human_physics
+
+    print(f"\nkey points, {len(files)} clips: penalty against human_physics()")
+    for name in targets:
+        robot = load_robot(name)
+        model = collision_model(robot)
+        for label, phys in (("penalty", PhysicsConfig()), ("human", human_physics())):
+            errs, jerks, t0 = [], [], time.perf_counter()
+            for f in files:
+                src = read_source(f, human_kind(f, None))
+                res = retarget_features(src.features(), src.skeleton, robot.skeleton, method="optimize", physics=phys, geometry=[model])
+                pos, _ = res.motion.forward_kinematics()
+                eta = joint_map(robot.skeleton, src.skeleton)
+                refs = list(np.flatnonzero(eta.any(0)))
+                ti, rj = np.nonzero(eta)
+                d = np.asarray(pos)[:, ti] - res.reference_points[:, [refs.index(j) for j in rj]]
+                errs.append(float(np.linalg.norm(d, axis=-1).mean()))
+                jerks.append(float(np.abs(np.diff(np.asarray(res.motion.q), 3, axis=0)).mean()))
+            print(f"{name:8s} {label:8s} g-mpbpe {np.mean(errs) * 1000:6.1f} mm  jerk {np.mean(jerks):.4f}  "
+                  f"{time.perf_counter() - t0:5.0f} s", flush=True)  # fmt: skip
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("folder")
     ap.add_argument("--targets", nargs="+", default=["g1", "h1"])
     ap.add_argument("--every", type=int, default=1, help="every N-th clip (a subset first: the whole set is long)")
+    ap.add_argument("--physics", choices=["default", "penalty", "constraints"], default="default",
+                    help="the physical terms: the default command's for a human source, or a method named")
+    ap.add_argument("--accuracy", action="store_true", help="instead: key-point error, jerk and time, penalty against human physics")
     ap.add_argument("--hz120", metavar="TMPDIR", help="also measure a 120 Hz copy of each BVH written there")
     a = ap.parse_args()
     torch.set_num_threads(1)
     files = sorted(p for p in Path(a.folder).iterdir() if p.suffix.lower() in (".bvh", ".npz", ".npy"))[:: a.every]
-    table(files, a.targets, f"{a.folder}")
+    from mer_models.retarget.clip import human_physics
+
+    if a.accuracy:
+        accuracy(files, a.targets)
+        return
+    physics = human_physics() if a.physics == "default" else PhysicsConfig(method=a.physics)
+    print(f"physics: {physics.method}", flush=True)
+    table(files, a.targets, f"{a.folder}", physics)
     if a.hz120:
         out = Path(a.hz120)
         out.mkdir(parents=True, exist_ok=True)
-        table([write_120hz(f, out) for f in files if f.suffix.lower() == ".bvh"], a.targets, f"{a.folder} at 120 Hz")
+        table([write_120hz(f, out) for f in files if f.suffix.lower() == ".bvh"], a.targets, f"{a.folder} at 120 Hz", physics)
 
 
 if __name__ == "__main__":

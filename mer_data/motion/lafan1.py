@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from mer_data.base.atomic import atomic_write
-from mer_data.base.errors import MotionFormatError
+from mer_data.base.errors import MerError, MotionFormatError
 from mer_data.base.finite import require_finite
 from mer_data.base.safe_io import gunzip_limited, read_regular_file
 from mer_data.robots.registry import Robot, as_robot
@@ -160,6 +160,29 @@ def decompress_motion(raw: bytes, path: str | Path) -> bytes:
     return gunzip_limited(raw, path, MotionFormatError, "MER_MAX_MOTION_BYTES")
 
 
+def _looks_like(exc: MotionFormatError, data: bytes, robot: Robot) -> MotionFormatError:
+    """``exc`` where the first row's column count is another registered robot's layout: then saying
+    which robot(s) it looks like, and to give that ``--source``."""
+    n = data.split(b"\n", 1)[0].count(b",") + 1
+    if exc.line is None or n == len(ROOT_COLUMNS) + len(lafan1_columns(robot)):
+        return exc
+    from mer_data.robots.registry import list_robots
+
+    alike = []
+    for other in list_robots():
+        try:
+            if other.name != robot.name and len(ROOT_COLUMNS) + len(lafan1_columns(other)) == n:
+                alike.append(other.name)
+        except MerError:
+            continue  # a robot without a LAFAN1 layout
+    if not alike:
+        return exc
+    return MotionFormatError(f"{exc.message}; {n} columns is the layout of {' or '.join(alike)}, not {robot.name}",
+                             path=exc.path, line=exc.line, element=exc.element,
+                             fix=f"give the robot the file belongs to: --source {alike[0]}"
+                                 f"{' (or ' + ', '.join(alike[1:]) + ')' if len(alike) > 1 else ''}")  # fmt: skip
+
+
 def parse_lafan1(
     data: bytes,
     robot: Robot,
@@ -179,7 +202,10 @@ def parse_lafan1(
     cols = lafan1_columns(r)
     ncols = len(ROOT_COLUMNS) + len(cols)
     what = f"{r.name}: root xyz, root quaternion xyzw, {len(cols)} joint angles"
-    a = parse_numeric_csv(data, ncols, path=str(path), what=what)
+    try:
+        a = parse_numeric_csv(data, ncols, path=str(path), what=what)
+    except MotionFormatError as exc:
+        raise _looks_like(exc, data, r) from None
     if not (fps > 0 and np.isfinite(fps)):
         raise MotionFormatError(f"frame rate must be positive, got {fps}", path=path)
     xyzw = a[:, 3:7]

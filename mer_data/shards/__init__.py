@@ -1,5 +1,6 @@
-"""Training shards: LAFAN1 robot CSVs -> origin-normalized 30 Hz windows with (augmented) target
-skeletons and joint maps, in HDF5 or MCAP (docs/shards.md).
+"""Training shards: LAFAN1 robot CSVs or human motion (BVH, SMPL, joint positions; one reference per
+body: ``humans.py``) -> origin-normalized 30 Hz windows with (augmented) target skeletons and joint
+maps, in HDF5 or MCAP (docs/shards.md).
 
 * :func:`build_shards` (``mer shards build``) and :class:`BuildConfig`;
 * :class:`ShardDataset`: samples (:class:`mer_data.motion.samples.TrainingSample`) from either format;

@@ -17,6 +17,7 @@ from mer_data.base.atomic import atomic_write
 from mer_data.base.errors import ShardFormatError
 from mer_data.base.outputs import refuse_foreign
 
+from .humans import human_kind_of
 from .reader import PathsLike, find_shards, open_shard
 from .schema import FORMAT_NAME, FORMAT_VERSION, ShardMeta
 from .sidecar import META_FILE
@@ -28,6 +29,7 @@ SYNTHETIC_LICENSE_ID = "apache-2.0"
 TASK_CATEGORY = "robotics"
 LAFAN1_TAGS = ["robotics", "motion-retargeting", "humanoid", "lafan1", "mer"]
 SYNTHETIC_TAGS = ["robotics", "motion-retargeting", "humanoid", "synthetic", "mer"]
+HUMAN_TAGS = ["robotics", "motion-retargeting", "humanoid", "human-motion", "mer"]
 _DEFAULTS = {"format": "hdf5", "window": 60, "fps": 30.0, "split": "paper", "augment": 4, "seed": 0, "num_shards": 1}
 
 
@@ -42,6 +44,12 @@ def rebuild_command(cfg: dict, input_label: str | None = None, out: str = "OUT")
                       ("augment", "--augment"), ("seed", "--seed"), ("num_shards", "--num-shards")):  # fmt: skip
         if cfg.get(key) != _DEFAULTS[key]:
             parts.append(f"{flag} {cfg[key]:g}" if isinstance(cfg[key], float) else f"{flag} {cfg[key]}")
+    if cfg.get("up"):
+        parts.append(f"--up {cfg['up']}")
+    if cfg.get("human_fps"):
+        parts.append(f"--fps {cfg['human_fps']:g}")
+    if cfg.get("body_model"):
+        parts.append("--body-model MODELS")
     if cfg.get("stride") != cfg.get("window"):
         parts.append(f"--stride {cfg['stride']}")
     parts.append(f"--targets {' '.join(cfg['targets'])}")
@@ -88,9 +96,30 @@ def render_card(paths: PathsLike, *, input_label: str | None = None) -> str:
         data = card_data(license=SYNTHETIC_LICENSE_ID, pretty_name=f"mer training shards: synthetic robot motion ({robots})",
                          tags=SYNTHETIC_TAGS, configs=_configs(metas))
         return hub_card(data, _synthetic_card(body, cfg))
+    kinds = sorted({k for _, m, _ in metas if (k := human_kind_of(m.robot))})
+    if kinds:
+        data = card_data(license="other", pretty_name=f"mer training shards: human motion ({robots})", tags=HUMAN_TAGS,
+                         configs=_configs(metas))
+        return hub_card(data, _human_card(body, cfg, kinds[0]))
     data = card_data(license=LICENSE_ID, pretty_name=f"mer training shards: LAFAN1 robot motion ({robots})", tags=LAFAN1_TAGS,
                      configs=_configs(metas))
     return hub_card(data, body)
+
+
+def _human_card(text: str, cfg: dict, kind: str) -> str:
+    """The body of a build from human motion (``--robots bvh|smpl|joints``): its title, provenance and licence."""
+    lafan1_provenance = text[text.index("Source: the LAFAN1") : text.index("Source files:") + len("Source files:")]
+    lafan1_licence = text[text.index("CC BY-NC-ND 4.0 (") : text.index("## Loading")]
+    what = {"bvh": "BVH motion capture", "smpl": "SMPL-family parameter files", "joints": "joint-position arrays"}[kind]
+    return (
+        text.replace("mer training shards: LAFAN1 robot motion", "mer training shards: human motion")
+        .replace(lafan1_provenance, f"Source: {what} read by mer (`mer_data.motion.sources`), one reference skeleton per "
+                 f"body among the clips (`{kind}`, `{kind}-2`, ...; docs/shards.md). Every window records its reference, clip, "
+                 "start frame and the sha256 of its source file. Source files:")
+        .replace(lafan1_licence, "The source files' own licence (`other`): motion capture and body-model data (AMASS, "
+                 "Bandai-Namco, the SMPL family's models) usually forbid redistributing derivatives; check it before "
+                 "sharing these shards.\n\n")
+    )  # fmt: skip
 
 
 def _synthetic_card(text: str, cfg: dict) -> str:
@@ -165,7 +194,7 @@ def render_lafan1_card(metas: list[tuple[Path, ShardMeta, str]], cfg: dict, inpu
     ]
     for r, clip, split, frames, status, sha in sorted(sources):
         body.append(f"| {r} | {clip} | {split} | {frames} | {status} | `{sha}` |")
-    shown = {k: v for k, v in cfg.items() if k not in ("resolved", "input")}
+    shown = {k: v for k, v in cfg.items() if k not in ("resolved", "input", "body_model")}
     body += [
         "",
         "## How to rebuild",

@@ -21,7 +21,7 @@ from mer_data.base.finite import require_finite
 from mer_data.kinematics.fk import SkeletonTensors, skeleton_tensors
 from mer_data.motion.lafan1 import Motion, decompress_motion, parse_lafan1, read_motion_file
 from mer_data.motion.resample import resample
-from mer_data.motion.sources import BVH_SOURCE, bvh_motion
+from mer_data.motion.sources import BVH_SOURCE, bvh_motion, read_human
 from mer_data.motion.windows import make_windows, window_starts
 from mer_data.robots.registry import Robot, load_robot
 from mer_data.skeleton import KEYPOINTS, Skeleton
@@ -29,6 +29,7 @@ from mer_data.skeleton import KEYPOINTS, Skeleton
 from .augment import LinkGroups, draw_dropped, draw_link_scales, link_groups
 from .config import BuildConfig
 from .hdf5_io import Hdf5Shard, Hdf5ShardWriter
+from .humans import human_kind_of
 from .schema import ShardMeta
 from .sources import sha256_bytes, stable_words
 from .synthetic_source import is_synthetic, synthetic_motion
@@ -156,10 +157,16 @@ def _load(ctx: BuildContext, task: ClipTask, record: dict) -> tuple[Motion | Non
     if old is not None:
         return None, ClipResult(task, old.sources[0], str(piece), reused=True)
     try:
-        if task.robot == BVH_SOURCE:  # human motion capture, as a motion of the dataset's one human
-            from mer_data.motion.bvh import parse_bvh_bytes
+        kind = human_kind_of(task.robot)
+        if kind is not None:  # a human, read as every retarget path reads it, as a motion of its body's skeleton
+            if kind == BVH_SOURCE and cfg.up is None:
+                from mer_data.motion.bvh import parse_bvh_bytes
 
-            motion = bvh_motion(parse_bvh_bytes(raw, str(path)), ctx.skeleton(task.robot))
+                human = parse_bvh_bytes(raw, str(path))  # the bytes hashed above
+            else:
+                human = read_human(path, kind, cfg.human_options())
+            motion = bvh_motion(human, ctx.skeleton(task.robot))
+            record["fps_in"] = float(motion.fps)
         else:
             data = decompress_motion(raw, path)
             motion = parse_lafan1(data, ctx.robot(task.robot), path=path, fps=cfg.fps, quat_tolerance=cfg.quat_tolerance)

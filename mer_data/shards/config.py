@@ -18,8 +18,9 @@ __all__ = ["BuildConfig", "PAPER_TARGETS", "FORMATS"]
 PAPER_TARGETS: tuple[str, ...] = ("g1", "h1", "oli", "tron1", "atlas", "talos", "valkyrie")
 FORMATS = ("hdf5", "mcap")
 #: fields that do not change the content of the shards (left out of the build id)
-_NOT_CONTENT = ("input",)
+_NOT_CONTENT = ("input", "body_model")
 _SYNTHETIC = ("synthetic", "synthetic_seconds", "synthetic_seed")
+_HUMAN = ("body_model", "up", "human_fps")  # kept only where given (builds without them keep their build id)
 
 
 @dataclass(frozen=True)
@@ -27,8 +28,10 @@ class BuildConfig:
     """What ``mer shards build`` builds.
 
     Attributes:
-        input: a folder holding ``<robot>/<clip>.csv[.gz]``, or ``hf://REPO_ID[@REVISION]``.
-        robots: source robots (each needs ``lafan1_columns`` in its card).
+        input: a folder holding ``<robot>/<clip>.csv[.gz]``, or ``hf://REPO_ID[@REVISION]``; human
+            files: a folder of them (``<kind>/*`` or ``*``, :func:`mer_data.motion.sources.human_files`).
+        robots: source robots (each needs ``lafan1_columns`` in its card), or one human kind alone:
+            ``("bvh",)``, ``("smpl",)``, ``("joints",)`` (one reference per body, :mod:`mer_data.shards.humans`).
         format: ``"hdf5"`` or ``"mcap"``.
         window: frames per window (at ``out_fps``).
         stride: frames between window starts, 1..window; ``None`` = ``window`` (non-overlapping
@@ -49,6 +52,9 @@ class BuildConfig:
             ``input``'s files (0: read ``input``); any registered robot works, LAFAN1 layout or not.
         synthetic_seconds: length of each synthetic clip [s] (generated at ``fps``).
         synthetic_seed: seed of the synthetic motion (clip ``i`` of robot ``R`` depends on it, ``R``, ``i``).
+        body_model, up, human_fps: how to read human clips (``robots`` ``("smpl",)`` or ``("joints",)``:
+            :class:`~mer_data.motion.sources.HumanOptions`): the SMPL-family model file or folder, the
+            up axis, the rate of files that say none [Hz]; None: the reader's defaults.
     """
 
     input: str
@@ -70,6 +76,9 @@ class BuildConfig:
     synthetic: int = 0
     synthetic_seconds: float = 20.0
     synthetic_seed: int = 0
+    body_model: str | None = None
+    up: str | None = None
+    human_fps: float | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "robots", tuple(self.robots))
@@ -110,8 +119,16 @@ class BuildConfig:
             problems.append(f"synthetic_seconds must be positive, got {self.synthetic_seconds!r}")
         if not isinstance(self.synthetic_seed, int):
             problems.append(f"synthetic_seed must be an integer, got {self.synthetic_seed!r}")
+        if self.human_fps is not None and not self.human_fps > 0:
+            problems.append(f"human_fps must be positive, got {self.human_fps!r}")
         if problems:
             raise ValueError("; ".join(problems))
+
+    def human_options(self):
+        """How the build reads human clips (:class:`~mer_data.motion.sources.HumanOptions`)."""
+        from mer_data.motion.sources import HumanOptions
+
+        return HumanOptions(body_model=self.body_model, up=self.up, fps=self.human_fps)
 
     def variants(self, split: str) -> int:
         """Target skeletons per (window, target): 1 + ``augment`` for training windows, 1 for evaluation."""
@@ -123,6 +140,9 @@ class BuildConfig:
         d["augmentation"] = self.augmentation.to_dict()
         if not self.synthetic:  # builds from files keep the configuration (and build id) they always had
             for k in _SYNTHETIC:
+                d.pop(k)
+        for k in _HUMAN:
+            if d[k] is None:
                 d.pop(k)
         return d
 

@@ -23,6 +23,7 @@ from pathlib import Path
 from mer_data.base.errors import ShardError, ShardFormatError
 
 from .card import LICENSE_ID, write_card
+from .humans import human_kind_of
 from .reader import SHARD_SUFFIXES, PathsLike, find_shards, open_shard
 from .sidecar import META_FILE, write_sidecar
 
@@ -100,16 +101,19 @@ def push_shards(folder: str | Path, repo_id: str, *, private: bool = False, igno
     if not _REPO.match(repo_id) or ".." in repo_id:
         raise ShardError(f"invalid Hub repo id {repo_id!r}", fix="write OWNER/NAME")
     shards = find_shards(folder)
-    builds = set()
+    builds, human = set(), None
     for p in shards:
         f = open_shard(p)
         builds.add((f.meta.build_id, bool(f.meta.config.get("synthetic"))))
+        human = human or human_kind_of(f.meta.robot)
         f.close()
     if len(builds) != 1:
         raise ShardFormatError(f"the folder holds shards of {len(builds)} builds", path=folder, fix="push one build per repository")
     synthetic = next(iter(builds))[1]
     if not synthetic and not ignore_license:
         raise ShardError(
+            f"these shards are derived from human motion files ({human}) under their own licence (AMASS, Bandai, ... often "
+            "forbid redistributing derivatives)" if human else
             f"these shards are derived from LAFAN1 ({LICENSE_ID}: no derivatives may be distributed)", path=folder,
             fix="share the dataset card and the rebuild command instead; pass --ignore-license only if you hold "
             "the rights to distribute them (e.g. to a private repository of your own group)",

@@ -18,11 +18,13 @@ from pathlib import Path
 from mer_data import __version__
 from mer_data.base.errors import MerError, ShardBuildError
 from mer_data.motion.lafan1 import lafan1_columns
-from mer_data.motion.sources import BVH_SOURCE, bvh_files, human_source_skeleton
+from mer_data.motion.sources import HUMAN_SOURCES, human_files
 from mer_data.motion.splits import resolve_split
 from mer_data.robots.registry import list_robots, load_robot
+from mer_data.skeleton import Skeleton
 
 from .config import BuildConfig
+from .humans import human_groups
 from .reader import open_shard
 from .schema import ShardMeta
 from .sources import discover_clips, resolve_input
@@ -86,28 +88,29 @@ def plan_build(cfg: BuildConfig, out: Path, shard_index: int | None) -> Plan:
         raise ShardBuildError(
             f"shard index {shard_index} is outside 0..{cfg.num_shards - 1}", fix="--shard-index I with 0 <= I < --num-shards"
         )
-    robots = [r for r in cfg.robots if r != BVH_SOURCE]
-    if BVH_SOURCE in cfg.robots and (cfg.synthetic or len(robots)):
-        raise ShardBuildError("a build from BVH takes --robots bvh alone, from a folder", fix="build the robots' shards separately")
+    kinds = [r for r in cfg.robots if r in HUMAN_SOURCES]
+    robots = [r for r in cfg.robots if r not in HUMAN_SOURCES]
+    if kinds and (cfg.synthetic or len(cfg.robots) > 1):
+        raise ShardBuildError(f"a build from human motion takes --robots {kinds[0]} alone, from a folder",
+                              fix="build the robots' shards separately")  # fmt: skip
     for r in robots:  # unknown robot (or, reading files, no LAFAN1 layout): refuse before touching anything
         load_robot(r) if cfg.synthetic else lafan1_columns(load_robot(r))
     targets = _resolve_targets(cfg.targets)
     clips: dict[str, dict[str, Path | str]]
-    human = None
+    humans: dict[str, Skeleton] = {}
     if cfg.synthetic:
         clips = dict(synthetic_clips(cfg.robots, cfg.synthetic))
     elif robots:
         clips = dict(discover_clips(resolve_input(cfg.input, cfg.robots), cfg.robots))
-    else:  # human motion capture: one human for the dataset, the first clip's (docs/shards.md)
+    else:  # human motion: one reference per body among the clips (mer_data.shards.humans, docs/shards.md)
         if cfg.input.startswith("hf://"):
-            raise ShardBuildError("BVH input is read from a local folder", fix="download the files and pass --input DIR")
-        clips = {BVH_SOURCE: dict(bvh_files(cfg.input))}
-        from mer_data.motion.bvh import read_bvh
-
-        human = human_source_skeleton(read_bvh(next(iter(clips[BVH_SOURCE].values()))))
+            raise ShardBuildError(f"{kinds[0]} input is read from a local folder", fix="download the files and pass --input DIR")
+        groups, humans = human_groups(human_files(cfg.input, kinds[0]), kinds[0], cfg.human_options())
+        clips = dict(groups)
     splits = resolve_split(cfg.split, {r: list(c) for r, c in clips.items()})
-    names = sorted(set(cfg.robots) | set(targets))
-    skeletons = {n: (human if n == BVH_SOURCE else load_robot(n).skeleton).to_json() for n in names}
+    refs = list(clips) if humans else list(cfg.robots)
+    names = sorted(set(refs) | set(targets))
+    skeletons = {n: (humans[n] if n in humans else load_robot(n).skeleton).to_json() for n in names}
     resolved = {
         "splits": splits,
         "targets": targets,
@@ -119,7 +122,7 @@ def plan_build(cfg: BuildConfig, out: Path, shard_index: int | None) -> Plan:
     shard_of = {c: i % N for i, c in enumerate(sorted(set().union(*map(set, clips.values()))))}
     wanted = range(N) if shard_index is None else [shard_index]
     parts: dict[str, Part] = {}
-    for r in cfg.robots:
+    for r in refs:
         for c in clips[r]:
             s = shard_of[c]
             if s not in wanted:

@@ -73,11 +73,14 @@ def discover_clips(root: Path, robots: Sequence[str]) -> dict[str, dict[str, Pat
         folder = root / robot
         if not folder.is_dir():
             present = sorted(p.name for p in root.iterdir() if p.is_dir()) if root.is_dir() else []
+            human = _human_kind_in(root)
             raise ShardBuildError(
-                f"no folder for robot {robot!r} in the input (it has: {', '.join(present) or 'nothing'})",
+                f"no folder for robot {robot!r} in the input (it has: {', '.join(present) or 'nothing'})"
+                + (f"; it holds human motion ({human} files)" if human else ""),
                 path=root,
-                fix=f"put the robot's clips in {folder}/ (one .csv or .csv.gz per clip)",
-            )
+                fix=f"for human motion give --robots {human} (alone; the targets are --targets)" if human
+                else f"put the robot's clips in {folder}/ (one .csv or .csv.gz per clip)",
+            )  # fmt: skip
         clips: dict[str, Path] = {}
         for p in sorted(folder.iterdir()):
             name = clip_name(p)
@@ -94,9 +97,28 @@ def discover_clips(root: Path, robots: Sequence[str]) -> dict[str, dict[str, Pat
                 )
             clips[name] = p
         if not clips:
-            raise ShardBuildError(f"no .csv or .csv.gz files for robot {robot!r}", path=folder)
+            human = _human_kind_in(folder)
+            raise ShardBuildError(f"no .csv or .csv.gz files for robot {robot!r}" + (f"; the folder holds {human} files" if human else ""),
+                                  path=folder, fix=f"for human motion give --robots {human} --input {folder}" if human else None)  # fmt: skip
         out[robot] = dict(sorted(clips.items()))
     return out
+
+
+def _human_kind_in(folder: Path) -> str | None:
+    """The human kind (bvh, smpl, joints) whose files ``folder`` holds (:func:`~mer_data.motion.sources.human_files`), else None."""
+    from mer_data.base.errors import MerError
+    from mer_data.motion.sources import HUMAN_SOURCES, human_files, human_kind
+
+    for kind in HUMAN_SOURCES:
+        try:
+            first = next(iter(human_files(folder, kind).values())) if folder.is_dir() else None
+        except MerError:
+            continue
+        try:  # an .npz of SMPL parameters or of joint positions: its content says
+            return human_kind(first, None) or kind
+        except MerError:
+            return kind
+    return None
 
 
 def sha256_bytes(data: bytes) -> str:

@@ -114,17 +114,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--physics", action=argparse.BooleanOptionalAction, default=True,
                    help="the optimiser (--method optimize, --refine) keeps every body above the floor and every joint "
                         "within its URDF speed limit (default; about half the frames/s: --no-physics for key points "
-                        "alone; docs/decisions.md, Physical terms of the optimiser)")
+                        "alone; docs/decisions.md, Physical terms of the optimiser); a human source's stance feet also "
+                        "stay on the floor without sliding while the human's foot is down (docs/model.md)")
     p.set_defaults(func=cmd_retarget)
 
 
 def physics_option(args):
-    """The optimiser's physical terms (their default weights), None with ``--no-physics``."""
+    """The optimiser's physical terms (their default weights; a human source's feet planted by the
+    constraint method, :func:`~mer_models.retarget.clip.human_physics`), None with ``--no-physics``."""
     if not args.physics:
         return None
+    from mer_data.motion.sources import HUMAN_SOURCES
+    from mer_models.retarget.clip import human_physics
     from mer_models.solver.physics import PhysicsConfig
 
-    return PhysicsConfig()
+    human = isinstance(getattr(args, "source", None), str) and args.source.lower() in HUMAN_SOURCES
+    return human_physics() if human else PhysicsConfig()
 
 
 def add_human_options(p) -> None:
@@ -297,7 +302,9 @@ def _dataset(args) -> int:
     if args.video is not None:
         raise MerError("--video writes one file's video; a dataset run does not make videos",
                        fix="retarget the clip you want to see on its own: mer retarget CLIP.csv --source ... --target ... --video OUT.gif")
-    method, _ = choose_method(args, args.source.lower() == "bvh")
+    from mer_data.motion.sources import HUMAN_SOURCES
+
+    method, _ = choose_method(args, args.source.lower() in HUMAN_SOURCES)
     check_refine(args)
     checkpoint, kw = None, {}
     if method == "diffusion":

@@ -15,18 +15,23 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse._SubParsersAction:
     p = sub.add_parser("shards", help="build and inspect training shards (LAFAN1 robot CSVs -> HDF5/MCAP)")
     ss = p.add_subparsers(dest="shards_cmd", required=True, metavar="{build,inspect,card,push,solve}")
 
-    b = ss.add_parser("build", help="build training shards from robot motion CSVs or synthetic motion")
+    b = ss.add_parser("build", help="build training shards from robot motion CSVs, human motion (BVH, SMPL .npz, joint positions) or synthetic motion")
     src = b.add_mutually_exclusive_group(required=True)
-    src.add_argument("--input", metavar="DIR|hf://REPO_ID", help="folder with ROBOT/*.csv[.gz], or a Hub dataset (hf://OWNER/NAME[@REV])")
+    src.add_argument("--input", metavar="DIR|hf://REPO_ID", help="folder with ROBOT/*.csv[.gz] (or human files: KIND/* or *), or a Hub dataset (hf://OWNER/NAME[@REV])")
     src.add_argument("--synthetic", type=int, metavar="N", help="N clips of synthetic motion per robot instead (any registered robot; no data needed)")
     b.add_argument("--synthetic-seconds", type=float, default=20.0, metavar="S", help="seconds per synthetic clip (default 20)")
     b.add_argument("--synthetic-seed", type=int, default=0, metavar="S", help="seed of the synthetic motion (default 0)")
-    b.add_argument("--robots", nargs="+", required=True, metavar="ROBOT", help="source robots, e.g. g1 h1 (with --input: robots with motion data)")
+    b.add_argument("--robots", nargs="+", required=True, metavar="ROBOT", help="source robots, e.g. g1 h1 (with --input: robots with motion data); "
+                   "or one human kind: bvh, smpl or joints (a folder of .bvh, SMPL-family .npz or joint-position .npy files; docs/shards.md)")
+    b.add_argument("--body-model", metavar="PATH", help="--robots smpl: the SMPL / SMPL+H / SMPL-X model .npz or folder "
+                   "(default: $MER_BODY_MODELS, else body_models in the user config)")
+    b.add_argument("--up", choices=["x", "y", "z", "-x", "-y", "-z"], help="human files: their up axis (default: the reader's)")
     b.add_argument("--out", required=True, metavar="DIR", help="output folder")
     b.add_argument("--format", choices=FORMATS, default="hdf5", help="shard format (default hdf5)")
     b.add_argument("--window", type=int, default=60, help="frames per window (default 60)")
     b.add_argument("--stride", type=int, default=None, help="frames between window starts (default: the window)")
-    b.add_argument("--fps", type=float, default=30.0, help="frame rate of the input files [Hz] (default 30); windows are 30 Hz")
+    b.add_argument("--fps", type=float, default=None, help="frame rate of the input files [Hz] (default: a CSV 30; human files "
+                   "their own, joint positions without one 20); windows are 30 Hz")
     b.add_argument("--split", default="all", metavar="all|paper|FILE", help="all (default: every clip trains), paper (the paper's "
                    "split: 3 training clips per robot, the rest held out for evaluation), or a file of training clips")
     b.add_argument("--targets", nargs="+", default=list(PAPER_TARGETS), metavar="ROBOT", help="target robots (default: the paper's seven; 'all' = every registered robot)")
@@ -66,11 +71,15 @@ def cmd_build(args) -> int:
 
     try:
         synthetic = args.synthetic is not None
+        human = any(r in ("bvh", "smpl", "joints") for r in args.robots)  # mer_data.motion.sources.HUMAN_SOURCES
+        if not human and (args.body_model or args.up):
+            raise ValueError("--body-model and --up read human files (--robots bvh|smpl|joints)")
         if synthetic and args.synthetic < 1:
             raise ValueError(f"--synthetic must be at least 1 clip per robot, got {args.synthetic}")
         config = BuildConfig(
             input="synthetic" if synthetic else args.input, robots=tuple(args.robots), format=args.format,
-            window=args.window, stride=args.stride, fps=args.fps, split=args.split,
+            window=args.window, stride=args.stride, fps=30.0 if human or args.fps is None else args.fps, split=args.split,
+            body_model=args.body_model, up=args.up, human_fps=args.fps if human else None,
             targets=tuple(args.targets), augment=args.augment, seed=args.seed, num_shards=args.num_shards,
             synthetic=args.synthetic or 0, synthetic_seconds=args.synthetic_seconds, synthetic_seed=args.synthetic_seed,
         )  # fmt: skip

@@ -111,6 +111,25 @@ def geometry_of(target: Skeleton):
     return collision_model(robot) if robot.skeleton.fingerprint == target.fingerprint else None
 
 
+#: The no-slip term's weight for human sources (relative to ``rho``): 16 measured 0.2 / 0.3 cm/s median
+#: stance skate on G1 / H1 (Bandai subset) against 0.7 / 1.4 at the solver's 1 (docs/decisions.md).
+HUMAN_XY_WEIGHT = 16.0
+
+
+def human_physics(cfg=None):
+    """The physical terms of a human source (BVH, SMPL family, joint positions): ``cfg`` (default
+    :class:`~mer_models.solver.physics.PhysicsConfig`) with the constraint method, whose stance
+    constraint keeps the robot's sole on the floor and its lowest point from sliding while the
+    human's foot is down (:func:`mer_data.motion.contacts.foot_contacts`; measured: docs/model.md
+    §Feet of human sources). A source that floats or sinks gets the same: the contacts come from each
+    foot's own standing level."""
+    import dataclasses
+
+    from mer_models.solver.physics import PhysicsConfig
+
+    return dataclasses.replace(cfg or PhysicsConfig(), method="constraints", xy_weight=HUMAN_XY_WEIGHT)
+
+
 def physics_inputs(feats: np.ndarray, ref: Skeleton, geometry, fps: float, cfg, contacts: torch.Tensor | None = None):
     """:class:`~mer_models.solver.physics.PhysicsInputs` of one motion for a target whose collision
     model is ``geometry``: the source's foot contacts from its features (N, Jr, 9), unless given

@@ -217,3 +217,15 @@ def test_real_clip_matches_loadtxt_bit_for_bit(lafan1_dir, robot):
     assert np.allclose(m.base_quat[:, 0], ref[:, 6] / np.linalg.norm(ref[:, 3:7], axis=1))
     # design notes: read as w-first, the feet would float; read correctly, the root is ~0.7-1 m up
     assert 0.5 < np.median(m.base_pos[:, 2]) < 1.2
+
+
+def test_a_csv_of_another_robot_names_that_robot():
+    """A G1 file read as H1's: the column count is G1's layout, and the error says so (and the fix)."""
+    with pytest.raises(MotionFormatError) as e:
+        parse_lafan1(_csv(_g1_rows(3)), load_robot("h1"), path="walk.csv")
+    assert e.value.line == 1 and "36 columns is the layout of g1, not h1" in str(e.value) and "--source g1" in str(e.value)
+    rows = _g1_rows(3)
+    rows[0] = rows[0][:20]  # a count no robot has: the plain message
+    with pytest.raises(MotionFormatError, match="20 values on this line, expected 36") as e:
+        parse_lafan1(_csv(rows), load_robot("g1"))
+    assert "layout of" not in str(e.value)

@@ -80,10 +80,10 @@ def test_a_model_option_on_a_human_source_is_refused_with_the_reason(tmp_path, c
     out = tmp_path / "h1.csv"
     assert main(["retarget", str(clip), "--target", "h1", "-o", str(out), "--quiet", *extra]) == 1
     err = capsys.readouterr().err
-    assert "a model cannot retarget a human (BVH) source" in err and "optimiser" in err and not out.exists()
+    assert "a model cannot retarget a human source (BVH" in err and "optimiser" in err and not out.exists()
     assert main(["retarget", "--input", str(clip.parent.parent), "--source", "bvh", "--targets", "h1", "--out", str(tmp_path / "ds"),
                  "--quiet", *extra]) == 1  # fmt: skip
-    assert "a model cannot retarget a human (BVH) source" in capsys.readouterr().err and not (tmp_path / "ds").exists()
+    assert "a model cannot retarget a human source (BVH" in capsys.readouterr().err and not (tmp_path / "ds").exists()
 
 
 def test_a_model_option_with_the_optimiser_is_refused(tmp_path, capsys):
