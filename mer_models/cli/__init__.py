@@ -102,8 +102,8 @@ def _check_outputs(command: argparse.ArgumentParser, args: argparse.Namespace) -
     if isinstance(out, str) and out and not out.startswith("hf://"):
         as_file = any(a.dest == "out" and a.metavar == "FILE" for a in command._actions)
         (check_output_file if as_file else check_output_dir)(out, "--out")
-    if getattr(args, "command", None) == "robots" and getattr(args, "robots_cmd", None) == "export":
-        check_output_file(args.mjcf, "--mjcf")
+    if getattr(args, "command", None) == "robots" and getattr(args, "robots_cmd", None) == "export" and getattr(args, "mjcf", None):
+        check_output_file(args.mjcf, "--mjcf")  # --mjlab DIR: checked by the export itself
     if getattr(args, "command", None) == "robots" and getattr(args, "robots_cmd", None) == "register" and not getattr(args, "dry_run", False):
         from mer_data.robots.location import robots_dir
 

@@ -206,6 +206,8 @@ def _urdf_visuals(robot: Robot, art: Articulation, mesh_dir: Path | None) -> tup
                 missing.append(filename)
                 continue
             v, faces = mesh
+            if np.prod(scale) < 0:  # a mirroring scale (TALOS' right side: "1 -1 1") turns the faces inside out
+                faces = faces[:, ::-1]
             out.setdefault(b, []).append((_transform(v * scale, frame @ t), faces))
     return out, missing
 

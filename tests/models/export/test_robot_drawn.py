@@ -9,6 +9,7 @@ description, where ``mer robots register`` says to put them.
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 from pathlib import Path
 
@@ -100,16 +101,23 @@ def test_mjcf_meshes_sit_where_mujoco_puts_them(g1m, g1_mjcf):
 
 def test_without_meshes_a_robot_draws_its_collision_shapes(tmp_path, g1_mjcf):
     """Registered without its meshes: every body with shapes draws them (capsules, spheres); a URDF
-    built-in finds its visual meshes in a folder given by name (``mesh_dir``), by file name."""
+    built-in without its shipped meshes finds the upstream ones in a folder given by name
+    (``mesh_dir``), by file name."""
     bare = register_robot("g1bare", g1_mjcf / "g1.xml").robot
     m = robot_meshes(bare)
     assert m.kind == "collision" and m.missing and all(b.source == "collision" for b in m.bodies)
     assert len(m.bodies) >= 20
     found = robot_meshes(bare, mesh_dir=g1_mjcf / "assets", max_faces=4000)
     assert found.kind == "mesh" and not found.missing and found.num_faces <= 4000 + 60 * len(found.bodies)
-    g1 = robot_meshes(load_robot("g1"))  # built in: no meshes shipped, its compact hulls
-    assert g1.kind == "collision" and g1.missing
-    g1_meshes = robot_meshes(load_robot("g1"), mesh_dir=g1_mjcf / "assets")
+    # the built-in G1's folder without its shipped meshes (visual/): its compact hulls, and the
+    # upstream meshes given by folder are found by file name (the shipped STLs keep upstream's names)
+    g1 = load_robot("g1")
+    copy = tmp_path / "g1"
+    shutil.copytree(g1.folder, copy, ignore=shutil.ignore_patterns("visual"))
+    g1 = dataclasses.replace(g1, urdf_path=copy / g1.urdf_path.name)
+    bare = robot_meshes(g1)
+    assert bare.kind == "collision" and len(bare.missing) == 35
+    g1_meshes = robot_meshes(g1, mesh_dir=g1_mjcf / "assets")
     assert g1_meshes.kind == "mesh" and not g1_meshes.missing
 
 
@@ -187,3 +195,13 @@ def test_a_scaled_skeleton_is_drawn_as_bones(tmp_path):
     right = _frame(out, 3)[:, 400:].astype(int)
     dark = (right.max(-1) < 110) & (right.max(-1) - right.min(-1) < 20)  # the bones' dark grey
     assert _mesh_pixels(_frame(out, 3)) < 50 and dark.sum() > 50
+
+
+def test_a_builtin_video_frame_shows_its_shipped_meshes(tmp_path):
+    """issue 52: `--video` of a built-in draws its real shape (its shipped visual meshes, light blue),
+    not its collision shapes (amber), as it did before they were shipped."""
+    h1 = load_robot("h1")
+    motion = _motion(h1.skeleton, 6)
+    pos, _ = motion.forward_kinematics()
+    frame = _frame(write_video(tmp_path / "h1.gif", motion, pos[:, :3], fps=30.0), 3)
+    assert _mesh_pixels(frame) > 2000 and _shape_pixels(frame) < 50, (_mesh_pixels(frame), _shape_pixels(frame))

@@ -1,7 +1,7 @@
 """The viewer (``mer view``, viser) in a real headless browser: Debian's chromium, driven by
 playwright, loads the page from the viewer's loopback server; a screenshot shows the robot's meshes
 where the robot stands, and the same check fails on the page of the same motion with the meshes
-not drawn (collision shapes instead).
+not drawn (collision shapes instead); a built-in (its shipped meshes) is one connected robot.
 
 Skipped with the reason where chromium, playwright or viser is absent (the README's test command
 installs all three), or where ``../shared/robots-mjcf`` (the G1 with meshes) is absent.
@@ -23,7 +23,7 @@ from mer_data.kinematics.rotations import quat_to_matrix
 from mer_data.robots.register import register_robot
 from mer_data.robots.registry import load_robot
 from mer_models.export.geometry import robot_meshes
-from mer_models.export.viewer import serve_motion
+from mer_models.export.viewer import VIEWER_MAX_FACES, serve_motion
 from mer_models.export.writers import TargetMotion
 from mer_models.training.synthetic import synthetic_motion
 
@@ -122,32 +122,41 @@ def bone_pixels(rgb: np.ndarray) -> np.ndarray:
 
 
 def robot_components(rgb: np.ndarray) -> tuple[int, float]:
-    """The robot's pieces on screen (collision amber and bone grey, touching pixels joined): how many
-    pieces of over 30 pixels, and the share of the robot's pixels in the largest."""
+    """The robot's pieces on screen (mesh blue, collision amber and bone grey, touching pixels
+    joined): how many pieces of over 30 pixels, and the share of the robot's pixels in the largest."""
     from scipy import ndimage
 
     a = _region(rgb)
     amber = (a[..., 0] - a[..., 2] > 60) & (a[..., 1] - a[..., 2] > 20) & (a[..., 0] > 100)
-    mask = ndimage.binary_dilation(amber | bone_pixels(rgb), iterations=2)  # anti-aliased edges between them
+    blue = (a[..., 2] - a[..., 0] > 50) & (a[..., 2] - a[..., 1] > 20) & (a[..., 2] > 100)
+    mask = ndimage.binary_dilation(amber | blue | bone_pixels(rgb), iterations=2)  # anti-aliased edges between them
     labels, n = ndimage.label(mask)
     sizes = np.bincount(labels.ravel())[1:]
     return int((sizes > 30).sum()), float(sizes.max() / sizes.sum()) if n else 0.0
 
 
-def test_a_builtin_robot_is_drawn_connected_by_its_bones(browser, tmp_path):
-    """issue 52: a built-in's collision pieces floated apart in `mer view`; its bones now join them
-    into one connected robot on screen (one piece), and with the bones off none is drawn."""
+def test_a_builtin_robot_is_drawn_connected_with_its_meshes_or_by_its_bones(browser, tmp_path):
+    """issue 52: a built-in's collision pieces floated apart in `mer view`. The G1 now ships its
+    visual meshes and `mer view` draws them (one connected robot on screen); drawn by its collision
+    shapes (as Valkyrie, which ships none), its bones join them into one piece, and with the bones
+    off none is drawn."""
     g1 = load_robot("g1")
     s = g1.skeleton
     m = synthetic_motion(s, 20, seed=2)
     motion = TargetMotion(s, 30.0, m["q"], m["base_pos"], quat_to_matrix(torch.from_numpy(m["base_quat"])).numpy())
-    meshes = robot_meshes(g1)
-    assert meshes.kind != "mesh"  # a built-in without visual meshes: its collision shapes
+    meshes = robot_meshes(g1, max_faces=VIEWER_MAX_FACES)  # what `mer view --target g1` draws
+    assert meshes.kind == "mesh" and not meshes.missing  # its shipped meshes
     with serve_motion(motion, robot=g1, meshes=meshes, port=0, play=False) as v:
-        shot = screenshot(browser, v.url, tmp_path / "builtin.png")
+        shot = screenshot(browser, v.url, tmp_path / "builtin_meshes.png")
+    pieces, largest = robot_components(shot)
+    assert mesh_pixels(shot) > 3000 and shape_pixels(shot) < 100, (mesh_pixels(shot), shape_pixels(shot))
+    assert pieces == 1 and largest > 0.99, (pieces, largest)
+    shapes = robot_meshes(g1, visual=False)
+    with serve_motion(motion, robot=g1, meshes=shapes, port=0, play=False) as v:
+        shot = screenshot(browser, v.url, tmp_path / "builtin_shapes.png")
     pieces, largest = robot_components(shot)
     assert shape_pixels(shot) > 1500 and bone_pixels(shot).sum() > 200, (shape_pixels(shot), bone_pixels(shot).sum())
     assert pieces == 1 and largest > 0.99, (pieces, largest)
-    with serve_motion(motion, robot=g1, meshes=meshes, port=0, play=False, bones=False) as v:
+    with serve_motion(motion, robot=g1, meshes=shapes, port=0, play=False, bones=False) as v:
         shot = screenshot(browser, v.url, tmp_path / "no_bones.png")
     assert bone_pixels(shot).sum() < 50, bone_pixels(shot).sum()  # no bones: the check above cannot pass
