@@ -1,25 +1,28 @@
 """The balance term (``--balance``, opt-in): a motion whose mass could do what it shows (docs/model.md §Balance).
 
-After the kinematic solve (and the physical terms), a few more whole-window Levenberg-Marquardt
-iterations (:func:`~.ik.coupled_lm_ik`, same energy) add, per frame ``t``, residuals of the motion's own
-dynamics (:mod:`mer_data.kinematics.dynamics`, unfiltered, without the bodies' spin: the centre of
-mass' second difference, so a row reaches frames ``t - 1 .. t + 1`` only):
+After the kinematic solve (and the physical terms), :attr:`BalanceConfig.rounds` rounds of whole-window
+Levenberg-Marquardt iterations (:func:`~.ik.coupled_lm_ik`, the same energy) add, per frame ``t``,
+residuals of the motion's own dynamics as the balance metric measures them
+(:mod:`mer_data.kinematics.dynamics`: second differences of every body's centre of mass, the metric's
+one 5-tap binomial filter; the bodies' spin left out), so a row reaches frames ``t - 3 .. t + 3``:
 
-* **ZMP in the stance foot** (single-support frames of the kinematic solution): for each edge
-  ``n . p + d <= 0`` of the stance foot's support polygon (:func:`mer_data.kinematics.support.stance_polygons`:
-  its corners, read once per round, move with the foot's node), the excess
-  ``relu(n . (c_xy f_z - c_z f_xy - (n_y, -n_x)) + (d + tol) f_z) / (M g)`` [m] (the ZMP's distance past
-  the edge moved ``tol`` inward, written without the division by ``f_z``:
-  where ``f_z = M g`` it is that distance; a pulling frame cannot hide behind ``f_z < 0``);
+* **ZMP in the support polygon** (every contact frame): for each edge ``n . p + d <= 0`` of the
+  polygon (:func:`mer_data.kinematics.support.support_polygons`, read at a round's start; each corner
+  moves with its node, so moving a foot moves its edges; a foot counts only while its lowest vertex
+  is within ``down`` of the floor), the excess ``relu(n . (c_xy f_z - c_z f_xy - (n_y, -n_x)) + (d + tol) f_z) / (M g)``
+  [m]: the ZMP's distance past the edge moved ``tol`` inward, written without the division by ``f_z``
+  (where ``f_z = M g`` it is that distance; a pulling frame cannot hide behind ``f_z < 0``);
 * **ballistic flight** (flight frames): ``f / (M g)`` (0 for a centre of mass in free fall).
 
-Each row weighs ``weight * w_kp`` (flight ``flight_weight * w_kp``). What moves: everything the energy
-lets move, at the energy's price; the key points are world positions, so the cheapest change is the
-base's horizontal path (the stance foot's goal holds the foot; the legs take the difference) and the
-torso's lean, and a temporal prior on the change from the kinematic solution (``change_smooth``, as the
-constraint method's) keeps the change smooth. The Gauss-Newton product of a three-frame row couples
-frames ``t - 1`` and ``t + 1``, which the block-tridiagonal solve does not hold: that block is replaced
-by its bound ``2 a.c <= |a|^2 + |c|^2`` on the two frames' own blocks (a majoriser: each step still
+Each row weighs ``weight * w_kp`` (flight ``flight_weight * w_kp``). What moves: what the energy lets
+move most cheaply. The key points are world positions and the stance foot's goal holds the foot, so the
+change goes into the base's horizontal path (the legs taking the difference) and the torso's lean; a
+temporal prior on the change from the kinematic solution (``change_smooth``, as the constraint method's)
+keeps it smooth. The unfiltered three-frame rows were tried first: the solve met them with frame-to-frame
+alternating accelerations that the metric's filter averages away (its single-support ZMP stayed
+outside; docs/decisions.md). The Gauss-Newton product of a seven-frame row couples frames up to six
+apart, which the block-tridiagonal solve does not hold: each product of two frames two or more apart is
+replaced by its bound ``2 a.b <= |a|^2 + |b|^2`` on the frames' own blocks (a majoriser: its step
 lowers the cost it was computed for; the solver keeps a step only where the true cost fell).
 """
 
@@ -32,7 +35,7 @@ import numpy as np
 import torch
 
 from mer_data.kinematics.collision import shape_points
-from mer_data.kinematics.dynamics import GRAVITY
+from mer_data.kinematics.dynamics import BINOMIAL, GRAVITY
 from mer_data.kinematics.support import support_polygons
 from mer_models.batch import batch_fk
 
@@ -40,6 +43,7 @@ from .ik import ancestors, coupled_lm_ik
 
 __all__ = ["BalanceConfig", "BalanceInputs", "balance_rows", "MAX_CORNERS"]
 
+HALF = 3  # a row reaches frames t - HALF .. t + HALF (the filter's 5 taps over second differences)
 MAX_CORNERS = 12  # corners of a stance polygon the term keeps (:func:`mer_data.kinematics.support.stance_polygons`)
 
 
@@ -75,17 +79,20 @@ def balance_rows(x: torch.Tensor, mass: torch.Tensor, fps: float, verts: torch.T
     """The rows of one frame: (E + 3,) [1] (module docstring, unweighted).
 
     Args:
-        x: (3, J, 3) the body centres of mass [m] at frames t - 1, t, t + 1; verts: (E, 3) the stance
+        x: (7, J, 3) the body centres of mass [m] at frames t - 3 .. t + 3; verts: (E, 3) the stance
             polygon's corners at frame t [m], counter-clockwise (seen from above), moving with the foot;
             edges: (E,) 1 for a real edge from corner e to e + 1, 0 for padding; single, flight: 0-d (0 or 1).
     """
     m = mass
     M = m.sum()
     g = x.new_tensor([0.0, 0.0, -GRAVITY])
-    force_i = m[:, None] * ((x[0] - 2 * x[1] + x[2]) * fps**2 - g)  # (J, 3)
+    acc = (x[:-2] - 2 * x[1:-1] + x[2:]) * fps**2  # (5, J, 3) at frames t - 2 .. t + 2
+    w = x.new_tensor(BINOMIAL) / sum(BINOMIAL)
+    force_i = m[:, None] * ((w[:, None, None] * acc).sum(0) - g)  # (J, 3): the metric's filter
     f = force_i.sum(0)
-    c = (m[:, None] * x[1]).sum(0) / M
-    n = torch.linalg.cross(x[1] - c, force_i, dim=-1).sum(0)
+    xt = x[HALF]
+    c = (m[:, None] * xt).sum(0) / M
+    n = torch.linalg.cross(xt - c, force_i, dim=-1).sum(0)
     arm = c[:2] * f[2] - c[2] * f[:2] - torch.stack([n[1], -n[0]])  # f_z p
     v = verts[:, :2]
     e = torch.roll(v, -1, 0) - v
@@ -138,22 +145,26 @@ class _Rows:
 
     def _row(self, x, edges, single, flight):
         J = self.mass.shape[0]
-        r = balance_rows(x[:, :J], self.mass, self.i.fps, x[1, J:], edges, single, flight, self.i.cfg.tol) * self.sw
+        r = balance_rows(x[:, :J], self.mass, self.i.fps, x[HALF, J:], edges, single, flight, self.i.cfg.tol) * self.sw
         return r, r
 
+    def _windows(self, x):
+        """(B (T - 2 HALF), 2 HALF + 1, P, 3) every interior frame's window, and the interior's slice."""
+        T, W = x.shape[1], 2 * HALF + 1
+        return torch.stack([x[:, k : T - W + 1 + k] for k in range(W)], 2).flatten(0, 1), slice(HALF, T - HALF)
+
     def _rows_of(self, x):
-        """Residuals (B, T, R) (0 at the two end frames) and their Jacobian (B, T, R, 3, J, 3) on x at t-1, t, t+1."""
+        """Residuals (B, T, R) (0 at the HALF end frames) and their Jacobian (B, T, R, W, P, 3) on the window's points."""
         B, T = x.shape[:2]
-        R = self.sw.shape[0]
+        R, W = self.sw.shape[0], 2 * HALF + 1
         res = x.new_zeros(B, T, R)
-        jac = x.new_zeros(B, T, R, 3, *x.shape[2:])
-        if T < 3:
+        jac = x.new_zeros(B, T, R, W, *x.shape[2:])
+        if T < W:
             return res, jac
-        win = torch.stack([x[:, :-2], x[:, 1:-1], x[:, 2:]], 2).flatten(0, 1)  # (B (T-2), 3, J, 3)
-        sl = slice(1, T - 1)
+        win, sl = self._windows(x)
         jw, rw = self.rows(win, *self._per_frame(sl))
-        res[:, sl] = rw.view(B, T - 2, R)
-        jac[:, sl] = jw.view(B, T - 2, R, 3, *x.shape[2:])
+        res[:, sl] = rw.view(B, T - W + 1, R)
+        jac[:, sl] = jw.view(B, T - W + 1, R, W, *x.shape[2:])
         return res, jac
 
     def _dx(self, pos, rot, x):
@@ -175,15 +186,12 @@ class _Rows:
 
     def cost(self, pos, rot, qd, state) -> torch.Tensor:
         x = self._x(pos, rot)
-        T = x.shape[1]
         out = x.new_zeros(x.shape[:2])
-        if T < 3:
+        if x.shape[1] < 2 * HALF + 1:
             return out
-        win = torch.stack([x[:, :-2], x[:, 1:-1], x[:, 2:]], 2).flatten(0, 1)
-        sl = slice(1, T - 1)
-        f = torch.func.vmap(lambda *a: self._row(*a)[0])
-        r = f(win, *self._per_frame(sl))
-        out[:, sl] = (r**2).sum(-1).view(x.shape[0], T - 2)
+        win, sl = self._windows(x)
+        r = torch.func.vmap(lambda *a: self._row(*a)[0])(win, *self._per_frame(sl))
+        out[:, sl] = (r**2).sum(-1).view(x.shape[0], -1)
         return out
 
     def linearise(self, pos, rot, qd, state):
@@ -207,21 +215,19 @@ class _Rows:
         h = pos.new_zeros(B, T, n, n)
         c = pos.new_zeros(B, max(T - 1, 0), n, n)
         g = pos.new_zeros(B, T, n)
-        if T < 3:
+        W = 2 * HALF + 1
+        if T < W:
             return h, c, g
-        sl = slice(1, T - 1)
-        blocks = [torch.einsum("btrk,btkn->btrn", jac[:, sl, :, k].flatten(-2), dx[:, k : T - 2 + k]) for k in range(3)]  # G_k on frame t-1+k
-        a, b, cc = blocks
-        r = res[:, sl]
-        # the majoriser: 2 a.c dropped, |a|^2 and |c|^2 added once more to frames t-1 and t+1
-        h[:, 0 : T - 2] += 2 * a.transpose(-1, -2) @ a
-        h[:, 1 : T - 1] += b.transpose(-1, -2) @ b
-        h[:, 2:T] += 2 * cc.transpose(-1, -2) @ cc
-        c[:, 0 : T - 2] += b.transpose(-1, -2) @ a  # H[t, t-1]
-        c[:, 1 : T - 1] += cc.transpose(-1, -2) @ b  # H[t+1, t]
-        g[:, 0 : T - 2] += (a.transpose(-1, -2) @ r[..., None])[..., 0]
-        g[:, 1 : T - 1] += (b.transpose(-1, -2) @ r[..., None])[..., 0]
-        g[:, 2:T] += (cc.transpose(-1, -2) @ r[..., None])[..., 0]
+        sl = slice(HALF, T - HALF)
+        r = res[:, sl, :, None]
+        G = [torch.einsum("btrk,btkn->btrn", jac[:, sl, :, k].flatten(-2), dx[:, k : T - W + 1 + k]) for k in range(W)]  # on frame t - HALF + k
+        for k in range(W):  # the majoriser: 2 a_i . a_j of frames two or more apart dropped, |a_i|^2 + |a_j|^2 added
+            far = W - 1 - (k > 0) - (k < W - 1)
+            f = slice(k, T - W + 1 + k)
+            h[:, f] += (1 + far) * G[k].transpose(-1, -2) @ G[k]
+            g[:, f] += (G[k].transpose(-1, -2) @ r)[..., 0]
+            if k + 1 < W:
+                c[:, f] += G[k + 1].transpose(-1, -2) @ G[k]  # H[t - HALF + k + 1, t - HALF + k]
         return h, c, g
 
 
@@ -292,16 +298,7 @@ class BalanceInputs:
             self.read_support(*batch_fk(graph, q, base_pos, base_rot))
             if not bool(self.single.any() or self.flight.any()):
                 break
-            import time, logging
-            from .ik import _Problem
-            PP = _Problem(cfg, graph, eta, goal, q, goal_rot, rot_mask)
-            pos, rot = batch_fk(graph, q, base_pos, base_rot)
-            print("DBG before", float(self.build(PP, cfg.w_kp).cost(pos, rot, None, {}).sum()))
-            t0 = time.perf_counter()
-            st = {}
             q, base_pos, base_rot = coupled_lm_ik(cfg, graph, eta, goal, q, base_pos, base_rot, iters=self.cfg.iters, smooth=smooth,
                                                   tol=tol, physics=self, change_of=plain, change_smooth=smooth * self.cfg.change_smooth,
-                                                  goal_rot=goal_rot, rot_mask=rot_mask, stats=st)  # fmt: skip
-            pos, rot = batch_fk(graph, q, base_pos, base_rot)
-            print("DBG round", time.perf_counter() - t0, st["iterations"], float(st["cost"].sum()), "single", int(self.single.sum()), "bal cost", float(self.build(PP, cfg.w_kp).cost(pos, rot, None, {}).sum()))
+                                                  goal_rot=goal_rot, rot_mask=rot_mask)  # fmt: skip
         return q, base_pos, base_rot
