@@ -9,10 +9,14 @@ one 5-tap binomial filter; the bodies' spin left out), so a row reaches frames `
 * **ZMP in the support polygon** (every contact frame): for each edge ``n . p + d <= 0`` of the
   polygon (:func:`mer_data.kinematics.support.support_polygons`, read at a round's start; each corner
   moves with its node, so moving a foot moves its edges; a foot counts only while its lowest vertex
-  is within ``down`` of the floor), the excess ``relu(n . (c_xy f_z - c_z f_xy - (n_y, -n_x)) + (d + tol) f_z) / (M g)``
-  [m]: the ZMP's distance past the edge moved ``tol`` inward, written without the division by ``f_z``
-  (where ``f_z = M g`` it is that distance; a pulling frame cannot hide behind ``f_z < 0``);
-* **ballistic flight** (flight frames): ``f / (M g)`` (0 for a centre of mass in free fall).
+  is within ``down`` of the floor), the excess ``relu(n . p + d + tol)`` [m] of the ZMP
+  ``p = (c_xy f_z - c_z f_xy - (n_y, -n_x)) / max(f_z, 0.2 M g)`` past the edge moved ``tol`` inward
+  (written with ``f_z`` multiplied out, the solve lowered ``f_z`` instead: a sagging centre of mass
+  scales the excess down without moving the ZMP);
+* **ballistic flight** (flight frames): ``f / (M g)`` (0 for a centre of mass in free fall);
+* **the support held** (contact frames): each polygon corner's displacement from where the round read
+  it (without these rows the solve moved the polygon under the ZMP, tilting or sliding the stance foot,
+  instead of the ZMP over the polygon).
 
 Each row weighs ``weight * w_kp`` (flight ``flight_weight * w_kp``). What moves: what the energy lets
 move most cheaply. The key points are world positions and the stance foot's goal holds the foot, so the
@@ -43,6 +47,7 @@ from .ik import ancestors, coupled_lm_ik
 
 __all__ = ["BalanceConfig", "BalanceInputs", "balance_rows", "MAX_CORNERS"]
 
+MIN_FZ = 0.2  # the ZMP's division by f_z never below this share of the weight
 HALF = 3  # a row reaches frames t - HALF .. t + HALF (the filter's 5 taps over second differences)
 MAX_CORNERS = 12  # corners of a stance polygon the term keeps (:func:`mer_data.kinematics.support.stance_polygons`)
 
@@ -52,13 +57,14 @@ class BalanceConfig:
     """The balance term's weights and schedule (module docstring).
 
     weight: each ZMP row's weight relative to ``w_kp`` [1/m^2 of excess]; flight_weight: each flight
-    row's; down: a foot is in the term's polygon only where its lowest vertex is this close to the floor [m]
+    row's; hold_weight: each held corner coordinate's; down: a foot is in the term's polygon only where its lowest vertex is this close to the floor [m]
     (the metric's 2 cm would let a solve lift a swing foot out of a polygon it relied on); tol: how far inside the stance foot's edges the ZMP is held [m]; rounds x iters: Levenberg-Marquardt
     iterations, the stance polygons re-read from the motion before each round; change_smooth: the prior on
     the change from the kinematic solution, relative to the solve's temporal prior.
     """
 
     weight: float = 30.0
+    hold_weight: float = 100.0
     down: float | None = 0.01
     flight_weight: float = 3.0
     tol: float = 0.01
@@ -75,13 +81,15 @@ class BalanceConfig:
 
 
 def balance_rows(x: torch.Tensor, mass: torch.Tensor, fps: float, verts: torch.Tensor, edges: torch.Tensor,
-                 single: torch.Tensor, flight: torch.Tensor, tol: float) -> torch.Tensor:  # fmt: skip
-    """The rows of one frame: (E + 3,) [1] (module docstring, unweighted).
+                 single: torch.Tensor, flight: torch.Tensor, tol: float, read: torch.Tensor) -> torch.Tensor:  # fmt: skip
+    """The rows of one frame: (E + 3 + 3 E,) (module docstring, unweighted): the ZMP's excess per edge [m],
+    the flight force [1], each corner's displacement from where the round read it [m].
 
     Args:
         x: (7, J, 3) the body centres of mass [m] at frames t - 3 .. t + 3; verts: (E, 3) the stance
             polygon's corners at frame t [m], counter-clockwise (seen from above), moving with the foot;
-            edges: (E,) 1 for a real edge from corner e to e + 1, 0 for padding; single, flight: 0-d (0 or 1).
+            edges: (E,) 1 for a real edge from corner e to e + 1, 0 for padding; single, flight: 0-d (0 or 1);
+            read: (E, 3) the corners where the round read them [m].
     """
     m = mass
     M = m.sum()
@@ -98,8 +106,10 @@ def balance_rows(x: torch.Tensor, mass: torch.Tensor, fps: float, verts: torch.T
     e = torch.roll(v, -1, 0) - v
     normal = torch.stack([e[:, 1], -e[:, 0]], -1) / (e.norm(dim=-1, keepdim=True) + (1 - edges[:, None]) + 1e-12)
     d = -(normal * v).sum(-1)
-    excess = torch.relu(normal @ arm + (d + tol) * f[2]) * edges / (M * GRAVITY)
-    return torch.cat([excess * single, f / (M * GRAVITY) * flight])
+    p = arm / f[2].clamp_min(MIN_FZ * M * GRAVITY)  # the ZMP (f_z held away from 0: flight and pulling are other rows)
+    excess = torch.relu(normal @ p + d + tol) * edges
+    held = ((verts - read) * edges[:, None] * single).flatten()
+    return torch.cat([excess * single, f / (M * GRAVITY) * flight, held])
 
 
 class _Rows:
@@ -117,21 +127,23 @@ class _Rows:
         self.com[:k] = torch.tensor(inputs.com[:k], dtype=dt, device=dev)
         c = inputs.cfg
         E = inputs.local.shape[-2]
-        w = torch.cat([torch.full((E,), c.weight * w_kp), torch.full((3,), c.flight_weight * w_kp)]).to(dt).to(dev)
+        w = torch.cat([torch.full((E,), c.weight * w_kp), torch.full((3,), c.flight_weight * w_kp),
+                       torch.full((3 * E,), c.hold_weight * w_kp)]).to(dt).to(dev)  # fmt: skip
         self.sw = w.sqrt()
         self.single, self.flight = inputs.single.to(dt).to(dev), inputs.flight.to(dt).to(dev)
         self.node = inputs.node.to(dev)  # (B, T, E) each corner's node
         self.local = inputs.local.to(dt).to(dev)  # (B, T, E, 3) the corners in their node's frame
         self.edges = inputs.edges.to(dt).to(dev)
+        self.read = inputs.read.to(dt).to(dev)
         E = self.local.shape[2]
         # [b, t, point, j]: joint j moves the point (a body's centre; a corner of the stance node)
         owner = torch.cat([torch.arange(J, device=dev).expand(*self.node.shape[:2], J), self.node], -1)
         mv = ancestors(P.graph.parents) | torch.eye(J, dtype=torch.bool, device=dev)  # (B, J, J)
         self.moves = torch.gather(mv[:, None].expand(-1, owner.shape[1], -1, -1), 2, owner[..., None].expand(*owner.shape, J)).to(dt)
-        self.rows = torch.func.vmap(torch.func.jacrev(self._row, has_aux=True), in_dims=(0, 0, 0, 0))
+        self.rows = torch.func.vmap(torch.func.jacrev(self._row, has_aux=True), in_dims=(0, 0, 0, 0, 0))
 
     def _per_frame(self, sl):
-        return [v[:, sl].flatten(0, 1) for v in (self.edges, self.single, self.flight)]
+        return [v[:, sl].flatten(0, 1) for v in (self.edges, self.single, self.flight, self.read)]
 
     def _x(self, pos, rot):
         """(B, T, J + E, 3): the body centres of mass, then the stance polygon's corners moved with their node."""
@@ -143,9 +155,9 @@ class _Rows:
         corners = torch.einsum("btexy,btey->btex", rot[bi, ti, self.node], self.local) + pos[bi, ti, self.node]
         return torch.cat([com, corners], 2)
 
-    def _row(self, x, edges, single, flight):
+    def _row(self, x, edges, single, flight, read):
         J = self.mass.shape[0]
-        r = balance_rows(x[:, :J], self.mass, self.i.fps, x[HALF, J:], edges, single, flight, self.i.cfg.tol) * self.sw
+        r = balance_rows(x[:, :J], self.mass, self.i.fps, x[HALF, J:], edges, single, flight, self.i.cfg.tol, read) * self.sw
         return r, r
 
     def _windows(self, x):
@@ -247,6 +259,7 @@ class BalanceInputs:
     geometry: Any
     fps: float = 30.0
     local: torch.Tensor | None = None
+    read: torch.Tensor | None = None
     edges: torch.Tensor | None = None
     single: torch.Tensor | None = None
     flight: torch.Tensor | None = None
@@ -271,7 +284,7 @@ class BalanceInputs:
         verts = shape_points(self.geometry, p, r, "vertices").numpy()
         B, T = verts.shape[:2]
         E = MAX_CORNERS
-        local, edges = np.zeros((B, T, E, 3)), np.zeros((B, T, E))
+        local, edges, read = np.zeros((B, T, E, 3)), np.zeros((B, T, E)), np.zeros((B, T, E, 3))
         node, kind = np.zeros((B, T, E), np.int64), np.zeros((B, T), np.int64)
         has = np.zeros((B, T), bool)
         for b in range(B):
@@ -284,8 +297,10 @@ class BalanceInputs:
                 pr, rr = p[b, t, n].numpy(), r[b, t, n].numpy()  # (k, 3), (k, 3, 3)
                 local[b, t, :k] = np.einsum("kab,ka->kb", rr, corners[t] - pr)
                 local[b, t, k:], node[b, t, :k], node[b, t, k:] = local[b, t, k - 1], n, n[-1]
+                read[b, t, :k], read[b, t, k:] = corners[t], corners[t][-1]
                 edges[b, t, :k], has[b, t] = 1, True
         self.local, self.edges, self.node = torch.from_numpy(local), torch.from_numpy(edges), torch.from_numpy(node).to(pos.device)
+        self.read = torch.from_numpy(read)
         self.single, self.flight = torch.from_numpy(has), torch.from_numpy(kind == 0)
 
     def solve(self, cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: torch.Tensor, base_pos: torch.Tensor,

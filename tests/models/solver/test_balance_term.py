@@ -1,7 +1,6 @@
 """The balance term (mer_models.solver.balance_term): its rows are the ZMP's distance past the support
 polygon's edges (checked against the dynamics module's ZMP), its ``J^T r`` is half the gradient of its
-cost (finite differences), its rows reach three frames, and a solve with it moves a one-legged stance's
-ZMP into the foot."""
+cost (finite differences), and its rounds move a one-legged stance's ZMP into the foot."""
 
 from __future__ import annotations
 
@@ -92,30 +91,37 @@ def test_gradient_matches_finite_differences_and_reaches_seven_frames():
 
 
 def test_a_solve_moves_the_zmp_into_the_stance_foot():
-    """The optimiser on a one-legged stance whose goals keep the centre of mass between the feet:
-    with the term, the ZMP ends inside the left sole (the base shifted over it), without, it does not."""
-    from mer_data.motion.features import joint_features  # noqa: F401  (import check: the feature layout exists)
-    from mer_models.retarget.balance import balance_metrics
-    from mer_models.retarget.clip import retarget_features
-    from mer_data.robots.collision import collision_model
-    from mer_data.kinematics.fk import fk_skeleton, skeleton_tensors
-    from test_physics import _standing_features
+    """The term's rounds on a one-legged stance whose goals are the stance itself (the centre of mass
+    between the feet, the ZMP outside the left sole): the centre of mass moves over the left foot (+y), the ZMP's
+    excess falls to a fraction, the stance foot stays where it was."""
+    from mer_data.kinematics.jointmap import joint_map
+    from mer_models.config import EnergyConfig
+    from mer_models.solver.ik import DEFAULT_SMOOTH, DEFAULT_TOL
 
-    r, feats = _standing_features("g1", 30, 0.0)
+    T = 15
+    r, P, q, base_pos, base_rot, geo = _one_legged(T)
     s = r.skeleton
-    # the source lifts its right foot: stance on the left, the pelvis where the two feet were
-    from mer_data.motion.features import split_features  # noqa: F401
+    pos, rot, *_ = P.fit(P.columns(q), base_pos, base_rot)
+    eta = torch.from_numpy(joint_map(s, s))[None].double()
+    inp = BalanceInputs.of_robot(r, BalanceConfig(), FPS, geometry=geo)
+    cfg = EnergyConfig()
 
-    out = {}
-    for bal in (None, BalanceConfig()):
-        res = retarget_features(_lift_right(feats, s), s, s, method="optimize", fps=FPS, balance=bal)
-        mo = res.motion
-        pos, rot = fk_skeleton(skeleton_tensors(s, torch.float64), torch.from_numpy(mo.q), torch.from_numpy(mo.base_pos),
-                               base_rot=torch.from_numpy(mo.base_rot))  # fmt: skip
-        out[bal is None] = balance_metrics(pos.numpy(), rot.numpy(), FPS, s, mass_model(r), collision_model(r), torques=False)
-    assert out[True]["zmp_out_single"] > 0.5
-    assert out[False]["zmp_out_single"] < 0.1
+    def excess(q_, bp, br):
+        p_, r_, *_ = P.fit(P.columns(q_), bp, br)
+        inp.read_support(p_, r_)
+        return float(inp.build(P, 1.0).cost(p_, r_, None, {}).sum()), p_
 
-
-def _lift_right(feats: np.ndarray, s) -> np.ndarray:
-    return feats
+    before, _ = excess(q, base_pos, base_rot)
+    f32 = [x.float() for x in (eta, pos, q, base_pos, base_rot)]  # the solver's dtype (the graph's)
+    q2, bp2, br2 = (x.double() for x in inp.solve(cfg, P.graph, *f32, smooth=DEFAULT_SMOOTH, tol=DEFAULT_TOL))
+    after, pos2 = excess(q2, bp2, br2)
+    assert before > 0 and after < 0.3 * before, (before, after)
+    mm = mass_model(r)
+    J = len(mm.mass)
+    com = [dyn.demand(mm, dyn.body_wrenches(mm, p_[0, :, :J], r_[0, :, :J], FPS)).com for p_, r_ in
+           (P.fit(P.columns(q), base_pos, base_rot)[:2], P.fit(P.columns(q2), bp2, br2)[:2])]  # fmt: skip
+    mid = slice(4, T - 4)
+    assert float((com[1][mid, 1] - com[0][mid, 1]).mean()) > 0.01, (com[1][mid, 1] - com[0][mid, 1])  # the mass went left, over the stance foot
+    foot = s.node_index("left_ankle_roll_joint")
+    rows = slice(3, T - 3)  # the frames with rows (each reaches three frames either side)
+    assert float((pos2[0, rows, foot] - pos[0, rows, foot]).norm(dim=-1).max()) < 0.01
