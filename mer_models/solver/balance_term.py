@@ -18,11 +18,11 @@ one 5-tap binomial filter; the bodies' spin left out), so a row reaches frames `
   it (without these rows the solve moved the polygon under the ZMP, tilting or sliding the stance foot,
   instead of the ZMP over the polygon).
 
-Each row weighs ``weight * w_kp`` (flight ``flight_weight * w_kp``). What moves: what the energy lets
-move most cheaply. The key points are world positions and the stance foot's goal holds the foot, so the
-change goes into the base's horizontal path (the legs taking the difference) and the torso's lean; a
-temporal prior on the change from the kinematic solution (``change_smooth``, as the constraint method's)
-keeps it smooth. The unfiltered three-frame rows were tried first: the solve met them with frame-to-frame
+Each row weighs ``weight * w_kp`` (flight ``flight_weight * w_kp``, held corners ``hold_weight * w_kp``).
+What moves: the rows see every column (joints, base translation and rotation) and the energy picks the
+cheapest change; with the support held and the key points' goals in the world, that is the base's path
+with the legs taking up the difference, and the lean of the torso and arms. A temporal prior on the
+change from the kinematic solution (``change_smooth``, as the constraint method's) keeps it smooth. The unfiltered three-frame rows were tried first: the solve met them with frame-to-frame
 alternating accelerations that the metric's filter averages away (its single-support ZMP stayed
 outside; docs/decisions.md). The Gauss-Newton product of a seven-frame row couples frames up to six
 apart, which the block-tridiagonal solve does not hold: each product of two frames two or more apart is
@@ -49,18 +49,20 @@ __all__ = ["BalanceConfig", "BalanceInputs", "balance_rows", "MAX_CORNERS"]
 
 MIN_FZ = 0.2  # the ZMP's division by f_z never below this share of the weight
 HALF = 3  # a row reaches frames t - HALF .. t + HALF (the filter's 5 taps over second differences)
-MAX_CORNERS = 12  # corners of a stance polygon the term keeps (:func:`mer_data.kinematics.support.stance_polygons`)
+MAX_CORNERS = 12  # corners of a support polygon the term keeps (:func:`mer_data.kinematics.support.support_polygons`)
 
 
 @dataclasses.dataclass(frozen=True)
 class BalanceConfig:
     """The balance term's weights and schedule (module docstring).
 
-    weight: each ZMP row's weight relative to ``w_kp`` [1/m^2 of excess]; flight_weight: each flight
-    row's; hold_weight: each held corner coordinate's; down: a foot is in the term's polygon only where its lowest vertex is this close to the floor [m]
-    (the metric's 2 cm would let a solve lift a swing foot out of a polygon it relied on); tol: how far inside the stance foot's edges the ZMP is held [m]; rounds x iters: Levenberg-Marquardt
-    iterations, the stance polygons re-read from the motion before each round; change_smooth: the prior on
-    the change from the kinematic solution, relative to the solve's temporal prior.
+    weight: each ZMP row's weight relative to ``w_kp`` [1/m^2 of excess]; hold_weight: each held corner
+    coordinate's; flight_weight: each flight row's; down: a foot is in the term's polygon only where its
+    lowest vertex is this close to the floor [m] (with the metric's 2 cm a solve lifted a swing foot out
+    of a polygon it relied on); tol: how far inside the polygon's edges the ZMP is held [m]; rounds x
+    iters: Levenberg-Marquardt iterations, the polygons read from the motion before each round;
+    change_smooth: the prior on the change from the kinematic solution, relative to the solve's
+    temporal prior.
     """
 
     weight: float = 30.0
@@ -73,23 +75,25 @@ class BalanceConfig:
     change_smooth: float = 1.0
 
     def __post_init__(self) -> None:
-        for k in ("weight", "flight_weight", "tol", "change_smooth"):
+        for k in ("weight", "hold_weight", "flight_weight", "tol", "change_smooth"):
             if not getattr(self, k) >= 0:
                 raise ValueError(f"BalanceConfig.{k} must be >= 0, got {getattr(self, k)}")
+        if self.down is not None and not self.down > 0:
+            raise ValueError(f"BalanceConfig.down must be > 0 or None, got {self.down}")
         if self.rounds < 1 or self.iters < 1:
             raise ValueError(f"BalanceConfig.rounds and iters must be >= 1, got {self.rounds}, {self.iters}")
 
 
 def balance_rows(x: torch.Tensor, mass: torch.Tensor, fps: float, verts: torch.Tensor, edges: torch.Tensor,
-                 single: torch.Tensor, flight: torch.Tensor, tol: float, read: torch.Tensor) -> torch.Tensor:  # fmt: skip
+                 contact: torch.Tensor, flight: torch.Tensor, tol: float, read: torch.Tensor) -> torch.Tensor:  # fmt: skip
     """The rows of one frame: (E + 3 + 3 E,) (module docstring, unweighted): the ZMP's excess per edge [m],
     the flight force [1], each corner's displacement from where the round read it [m].
 
     Args:
-        x: (7, J, 3) the body centres of mass [m] at frames t - 3 .. t + 3; verts: (E, 3) the stance
-            polygon's corners at frame t [m], counter-clockwise (seen from above), moving with the foot;
-            edges: (E,) 1 for a real edge from corner e to e + 1, 0 for padding; single, flight: 0-d (0 or 1);
-            read: (E, 3) the corners where the round read them [m].
+        x: (7, J, 3) the body centres of mass [m] at frames t - 3 .. t + 3; verts: (E, 3) the support
+            polygon's corners at frame t [m], counter-clockwise (seen from above), moving with their nodes;
+            edges: (E,) 1 for a real edge from corner e to e + 1, 0 for padding; contact, flight: 0-d
+            (0 or 1); read: (E, 3) the corners where the round read them [m].
     """
     m = mass
     M = m.sum()
@@ -108,8 +112,8 @@ def balance_rows(x: torch.Tensor, mass: torch.Tensor, fps: float, verts: torch.T
     d = -(normal * v).sum(-1)
     p = arm / f[2].clamp_min(MIN_FZ * M * GRAVITY)  # the ZMP (f_z held away from 0: flight and pulling are other rows)
     excess = torch.relu(normal @ p + d + tol) * edges
-    held = ((verts - read) * edges[:, None] * single).flatten()
-    return torch.cat([excess * single, f / (M * GRAVITY) * flight, held])
+    held = ((verts - read) * edges[:, None] * contact).flatten()
+    return torch.cat([excess * contact, f / (M * GRAVITY) * flight, held])
 
 
 class _Rows:
@@ -130,7 +134,7 @@ class _Rows:
         w = torch.cat([torch.full((E,), c.weight * w_kp), torch.full((3,), c.flight_weight * w_kp),
                        torch.full((3 * E,), c.hold_weight * w_kp)]).to(dt).to(dev)  # fmt: skip
         self.sw = w.sqrt()
-        self.single, self.flight = inputs.single.to(dt).to(dev), inputs.flight.to(dt).to(dev)
+        self.contact, self.flight = inputs.contact.to(dt).to(dev), inputs.flight.to(dt).to(dev)
         self.node = inputs.node.to(dev)  # (B, T, E) each corner's node
         self.local = inputs.local.to(dt).to(dev)  # (B, T, E, 3) the corners in their node's frame
         self.edges = inputs.edges.to(dt).to(dev)
@@ -143,7 +147,7 @@ class _Rows:
         self.rows = torch.func.vmap(torch.func.jacrev(self._row, has_aux=True), in_dims=(0, 0, 0, 0, 0))
 
     def _per_frame(self, sl):
-        return [v[:, sl].flatten(0, 1) for v in (self.edges, self.single, self.flight, self.read)]
+        return [v[:, sl].flatten(0, 1) for v in (self.edges, self.contact, self.flight, self.read)]
 
     def _x(self, pos, rot):
         """(B, T, J + E, 3): the body centres of mass, then the stance polygon's corners moved with their node."""
@@ -155,9 +159,9 @@ class _Rows:
         corners = torch.einsum("btexy,btey->btex", rot[bi, ti, self.node], self.local) + pos[bi, ti, self.node]
         return torch.cat([com, corners], 2)
 
-    def _row(self, x, edges, single, flight, read):
+    def _row(self, x, edges, contact, flight, read):
         J = self.mass.shape[0]
-        r = balance_rows(x[:, :J], self.mass, self.i.fps, x[HALF, J:], edges, single, flight, self.i.cfg.tol, read) * self.sw
+        r = balance_rows(x[:, :J], self.mass, self.i.fps, x[HALF, J:], edges, contact, flight, self.i.cfg.tol, read) * self.sw
         return r, r
 
     def _windows(self, x):
@@ -250,7 +254,7 @@ class BalanceInputs:
     :class:`~mer_data.robots.inertia.MassModel`), its collision model ``geometry``, the frame rate ``fps``.
     A round's support polygons (:meth:`solve` sets them): ``node`` (B, T, E) the node each corner moves
     with, ``local`` (B, T, E, 3) the corners in their node's frame, counter-clockwise, ``edges`` (B, T, E)
-    which are real; ``single`` (B, T): frames with a polygon (every contact frame, single or double
+    which are real; ``contact`` (B, T): frames with a polygon (every contact frame, single or double
     support), ``flight`` (B, T)."""
 
     cfg: BalanceConfig
@@ -261,7 +265,7 @@ class BalanceInputs:
     local: torch.Tensor | None = None
     read: torch.Tensor | None = None
     edges: torch.Tensor | None = None
-    single: torch.Tensor | None = None
+    contact: torch.Tensor | None = None
     flight: torch.Tensor | None = None
     node: torch.Tensor | None = None
 
@@ -301,7 +305,7 @@ class BalanceInputs:
                 edges[b, t, :k], has[b, t] = 1, True
         self.local, self.edges, self.node = torch.from_numpy(local), torch.from_numpy(edges), torch.from_numpy(node).to(pos.device)
         self.read = torch.from_numpy(read)
-        self.single, self.flight = torch.from_numpy(has), torch.from_numpy(kind == 0)
+        self.contact, self.flight = torch.from_numpy(has), torch.from_numpy(kind == 0)
 
     def solve(self, cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: torch.Tensor, base_pos: torch.Tensor,
               base_rot: torch.Tensor, *, smooth: float, tol: float, goal_rot: torch.Tensor | None = None,
@@ -311,7 +315,7 @@ class BalanceInputs:
         plain = q
         for _ in range(self.cfg.rounds):
             self.read_support(*batch_fk(graph, q, base_pos, base_rot))
-            if not bool(self.single.any() or self.flight.any()):
+            if not bool(self.contact.any() or self.flight.any()):
                 break
             q, base_pos, base_rot = coupled_lm_ik(cfg, graph, eta, goal, q, base_pos, base_rot, iters=self.cfg.iters, smooth=smooth,
                                                   tol=tol, physics=self, change_of=plain, change_smooth=smooth * self.cfg.change_smooth,

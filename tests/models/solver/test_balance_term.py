@@ -49,7 +49,7 @@ def test_rows_are_the_zmp_distance_past_the_stance_foot():
     T = 9
     r, P, q, base_pos, base_rot, geo = _one_legged(T)
     inp, rows, pos, rot = _inputs(r, geo, P, q, base_pos, base_rot)
-    assert bool(inp.single[0, 1:-1].all())
+    assert bool(inp.contact[0, 1:-1].all())
     res, _ = rows._rows_of(rows._x(pos, rot))
     res = res / rows.sw  # unweighted
     mm = mass_model(r)
