@@ -136,7 +136,9 @@ def main(argv=None) -> int:
             v = np.array([x.get(k, float("nan")) if x.get(k) is not None else float("nan") for x in ms], np.float64)
             row[k] = float(np.nanmean(v)) if np.isfinite(v).any() else float("nan")
         rows.append(row)
-    print(f"frames {args.start + 1}-{args.end} of {', '.join(args.clips)}; mean over clips of each clip's figure (docs/model.md §Balance)")
+    print(
+        f"frames {args.start + 1}-{args.end} of {', '.join(args.clips)}; mean over clips of each clip's figure (docs/model.md §Balance)"
+    )
     print(f"{'source':6s} {'target':6s} {'motion':13s} " + " ".join(f"{h:>11s}" for _, h, _ in COLS))
     for r in rows:
         cells = [f"{r[k] * s:11.3f}" if np.isfinite(r[k]) else f"{'-':>11s}" for k, _, s in COLS]

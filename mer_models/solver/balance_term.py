@@ -143,7 +143,9 @@ class _Rows:
         # [b, t, point, j]: joint j moves the point (a body's centre; a corner of the stance node)
         owner = torch.cat([torch.arange(J, device=dev).expand(*self.node.shape[:2], J), self.node], -1)
         mv = ancestors(P.graph.parents) | torch.eye(J, dtype=torch.bool, device=dev)  # (B, J, J)
-        self.moves = torch.gather(mv[:, None].expand(-1, owner.shape[1], -1, -1), 2, owner[..., None].expand(*owner.shape, J)).to(dt)
+        self.moves = torch.gather(mv[:, None].expand(-1, owner.shape[1], -1, -1), 2, owner[..., None].expand(*owner.shape, J)).to(
+            dt
+        )
         self.rows = torch.func.vmap(torch.func.jacrev(self._row, has_aux=True), in_dims=(0, 0, 0, 0, 0))
 
     def _per_frame(self, sl):
@@ -193,7 +195,9 @@ class _Rows:
         eye = torch.eye(3, dtype=x.dtype, device=x.device)
         jt = eye.expand(*x.shape[:3], 3, 3)
         rel = x - pos[:, :, :1]
-        jr = torch.linalg.cross(eye.expand(*x.shape[:3], 3, 3), rel[..., None, :].expand(*x.shape[:3], 3, 3), dim=-1).transpose(-1, -2)
+        jr = torch.linalg.cross(eye.expand(*x.shape[:3], 3, 3), rel[..., None, :].expand(*x.shape[:3], 3, 3), dim=-1).transpose(
+            -1, -2
+        )
         return torch.cat([jq, jt, jr], -1)
 
     # ---- the physics interface of coupled_lm_ik ---------------------------------------------------------
@@ -236,7 +240,9 @@ class _Rows:
             return h, c, g
         sl = slice(HALF, T - HALF)
         r = res[:, sl, :, None]
-        G = [torch.einsum("btrk,btkn->btrn", jac[:, sl, :, k].flatten(-2), dx[:, k : T - W + 1 + k]) for k in range(W)]  # on frame t - HALF + k
+        G = [
+            torch.einsum("btrk,btkn->btrn", jac[:, sl, :, k].flatten(-2), dx[:, k : T - W + 1 + k]) for k in range(W)
+        ]  # on frame t - HALF + k
         for k in range(W):  # the majoriser: 2 a_i . a_j of frames two or more apart dropped, |a_i|^2 + |a_j|^2 added
             far = W - 1 - (k > 0) - (k < W - 1)
             f = slice(k, T - W + 1 + k)
@@ -303,7 +309,11 @@ class BalanceInputs:
                 local[b, t, k:], node[b, t, :k], node[b, t, k:] = local[b, t, k - 1], n, n[-1]
                 read[b, t, :k], read[b, t, k:] = corners[t], corners[t][-1]
                 edges[b, t, :k], has[b, t] = 1, True
-        self.local, self.edges, self.node = torch.from_numpy(local), torch.from_numpy(edges), torch.from_numpy(node).to(pos.device)
+        self.local, self.edges, self.node = (
+            torch.from_numpy(local),
+            torch.from_numpy(edges),
+            torch.from_numpy(node).to(pos.device),
+        )
         self.read = torch.from_numpy(read)
         self.contact, self.flight = torch.from_numpy(has), torch.from_numpy(kind == 0)
 

@@ -168,5 +168,7 @@ def test_a_push_forward_moves_the_zmp_back_by_the_known_amount(stepping):
     back = d0.com[:, 2].numpy() * float(d0.mass) * a / d0.force[:, 2].numpy()  # c_z M a / f_z
     np.testing.assert_allclose((z1[:, 0] - shift[:, 0, 0]) - z0[:, 0], -back, atol=1e-9)
     np.testing.assert_allclose(z1[:, 1], z0[:, 1], atol=1e-9)
-    assert np.median(np.abs(back - d0.com[:, 2].numpy() * a / dyn.GRAVITY)) < 0.005  # ~ c_z a / g: this motion is mostly near rest
+    assert (
+        np.median(np.abs(back - d0.com[:, 2].numpy() * a / dyn.GRAVITY)) < 0.005
+    )  # ~ c_z a / g: this motion is mostly near rest
     assert np.median(back) > 0.08  # the shift is large enough to tell

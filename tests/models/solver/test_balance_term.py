@@ -121,7 +121,9 @@ def test_a_solve_moves_the_zmp_into_the_stance_foot():
     com = [dyn.demand(mm, dyn.body_wrenches(mm, p_[0, :, :J], r_[0, :, :J], FPS)).com for p_, r_ in
            (P.fit(P.columns(q), base_pos, base_rot)[:2], P.fit(P.columns(q2), bp2, br2)[:2])]  # fmt: skip
     mid = slice(4, T - 4)
-    assert float((com[1][mid, 1] - com[0][mid, 1]).mean()) > 0.01, (com[1][mid, 1] - com[0][mid, 1])  # the mass went left, over the stance foot
+    assert float((com[1][mid, 1] - com[0][mid, 1]).mean()) > 0.01, (
+        com[1][mid, 1] - com[0][mid, 1]
+    )  # the mass went left, over the stance foot
     foot = s.node_index("left_ankle_roll_joint")
     rows = slice(3, T - 3)  # the frames with rows (each reaches three frames either side)
     assert float((pos2[0, rows, foot] - pos[0, rows, foot]).norm(dim=-1).max()) < 0.01
