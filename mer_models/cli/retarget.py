@@ -116,7 +116,26 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "within its URDF speed limit (default; about half the frames/s: --no-physics for key points "
                         "alone; docs/decisions.md, Physical terms of the optimiser); a human source's stance feet also "
                         "stay on the floor without sliding while the human's foot is down (docs/model.md)")
+    p.add_argument("--balance", action="store_true",
+                   help="the optimiser (--method optimize, --refine) also keeps the zero-moment point in the support polygon "
+                        "and flight ballistic, moving the base's path and the torso's lean (opt-in, a single file for now; several "
+                        "times slower; docs/model.md §Balance)")
     p.set_defaults(func=cmd_retarget)
+
+
+def balance_option(args):
+    """The balance term (:class:`~mer_models.solver.balance_term.BalanceConfig`, its defaults) with ``--balance``,
+    else None; refused where no optimiser stage runs (the model alone)."""
+    if not getattr(args, "balance", False):
+        return None
+    if args.method != "optimize" and not args.refine:
+        from mer_data.base.errors import MerError
+
+        raise MerError("--balance works in the optimiser, and this run has none (the model alone)",
+                       fix="add --method optimize, or --refine K with K > 0")  # fmt: skip
+    from mer_models.solver.balance_term import BalanceConfig
+
+    return BalanceConfig()
 
 
 def physics_option(args):
@@ -192,6 +211,8 @@ def cmd_retarget(args) -> int:
           "bf16": args.bf16}  # fmt: skip
     if args.method == "optimize":
         kw = {}
+    if args.balance:
+        kw["balance"] = balance_option(args)
     model = args.model
     if model is None and args.method == "diffusion":
         from mer_models.zoo import DEFAULT_MODEL
@@ -299,6 +320,9 @@ def _dataset(args) -> int:
         from mer_models.export.writers import require_tracker
 
         require_tracker(args.npz_for)
+    if args.balance:
+        raise MerError("--balance is not yet wired into a dataset run (a single file only: docs/model.md §Balance)",
+                       fix="retarget the clips one by one: mer retarget CLIP.csv --source ... --target ... --method optimize --balance")
     if args.video is not None:
         raise MerError("--video writes one file's video; a dataset run does not make videos",
                        fix="retarget the clip you want to see on its own: mer retarget CLIP.csv --source ... --target ... --video OUT.gif")

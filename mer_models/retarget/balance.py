@@ -3,8 +3,9 @@
 Per frame, from the robot's masses and inertias (:mod:`mer_data.robots.inertia`) and the
 dynamics of :mod:`mer_data.kinematics.dynamics` (central differences, the 5-tap binomial filter):
 the contact wrench the motion demands, its zero-moment point (ZMP) on the floor z = 0, and the
-**support**: every vertex of the robot's collision polytopes within :data:`CONTACT_HEIGHT` (2 cm)
-of the floor; the support polygon is the convex hull of their floor projections. A frame is
+**support** (:mod:`mer_data.kinematics.support`): every vertex of the robot's collision polytopes
+within :data:`CONTACT_HEIGHT` (2 cm) of the floor; the support polygon is the convex hull of their
+floor projections. A frame is
 
 * **flight** without any such vertex, else a **contact** frame: **single support** where all of
   them belong to one foot (the collision model's foot shapes), **double** otherwise (both feet, or
@@ -40,13 +41,13 @@ import torch
 
 from mer_data.kinematics import dynamics as dyn
 from mer_data.kinematics.collision import shape_points
+from mer_data.kinematics.support import CONTACT_HEIGHT, hull_indices, polygon_distance, support_kind
 
 log = logging.getLogger(__name__)
 
 __all__ = ["CONTACT_HEIGHT", "ZMP_TOL", "MU", "FLIGHT_TOL", "BALANCE_KEYS", "balance_frames", "balance_metrics",
            "polygon_distance", "best_contact_torques"]  # fmt: skip
 
-CONTACT_HEIGHT = 0.02  # [m] collision geometry this close to the floor supports
 ZMP_TOL = 0.02  # [m] a ZMP this far outside the support polygon is outside
 MU = 1.0  # friction coefficient
 FLIGHT_TOL = 2.0  # [m/s^2] a flight frame whose |c'' - g| exceeds this is off-ballistic
@@ -56,53 +57,6 @@ BALANCE_KEYS = (
     "balance_infeasible", "zmp_out", "zmp_out_single", "zmp_out_double", "zmp_out_dist", "pull_frames", "slip_frames",
     "flight_frames", "flight_accel", "torque_frames", "torque_ratio_max",
 )  # fmt: skip
-
-
-# ---- the support polygon ------------------------------------------------------------------------------
-def _hull(pts: np.ndarray) -> np.ndarray:
-    """Indices of the 2-D convex hull of ``pts`` (N, 2), counter-clockwise (qhull; a monotone chain
-    over the distinct points where they are collinear or fewer than three)."""
-    from scipy.spatial import ConvexHull, QhullError
-
-    if len(pts) >= 3:
-        try:
-            return ConvexHull(pts).vertices
-        except QhullError:
-            pass
-    _, first = np.unique(np.round(pts, 9), axis=0, return_index=True)
-    order = first[np.lexsort((pts[first, 1], pts[first, 0]))]
-    if len(order) <= 2:
-        return order
-
-    def half(idx):
-        out: list[int] = []
-        for i in idx:
-            while len(out) >= 2:
-                a, b = pts[out[-2]], pts[out[-1]]
-                if (b[0] - a[0]) * (pts[i][1] - a[1]) - (b[1] - a[1]) * (pts[i][0] - a[0]) <= 1e-12:
-                    out.pop()
-                else:
-                    break
-            out.append(int(i))
-        return out
-
-    lower, upper = half(order), half(order[::-1])
-    return np.array(lower[:-1] + upper[:-1])
-
-
-def polygon_distance(p: np.ndarray, pts: np.ndarray) -> float:
-    """Distance [m] of the point ``p`` (2,) outside the convex hull of ``pts`` (N, 2); 0 inside."""
-    h = pts[_hull(pts)]
-    if len(h) == 1:
-        return float(np.linalg.norm(p - h[0]))
-    a, b = h, np.roll(h, -1, axis=0)
-    if len(h) >= 3:
-        cross = (b[:, 0] - a[:, 0]) * (p[1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (p[0] - a[:, 0])
-        if np.all(cross >= -1e-12):
-            return 0.0
-    ab = b - a
-    t = np.clip(((p - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-18), 0, 1)
-    return float(np.linalg.norm(a + t[:, None] * ab - p, axis=-1).min())
 
 
 # ---- the most favourable contact split ------------------------------------------------------------------
@@ -176,15 +130,9 @@ def balance_frames(pos: np.ndarray, rot: np.ndarray, fps: float, skel: Any, mass
     force, moment, com, mass = d.force.numpy(), d.moment.numpy(), d.com.numpy(), float(d.mass)
     verts = shape_points(geometry, p, r, "vertices").numpy()  # (F, S, V, 3)
     low = verts[..., 2] < floor + CONTACT_HEIGHT  # (F, S, V)
-    foot = np.asarray(geometry.foot)
-    support = np.zeros(F, np.int64)
+    support = support_kind(np.asarray(geometry.foot), low)
     dist = np.full(F, np.nan)
-    for f in range(F):
-        shapes = np.flatnonzero(low[f].any(-1))
-        if len(shapes) == 0:
-            continue
-        sides = set(foot[shapes].tolist())
-        support[f] = 1 if len(sides) == 1 and 0 not in sides else 2
+    for f in np.flatnonzero(support > 0):
         if force[f, 2] > 0:
             dist[f] = polygon_distance(zmp[f], verts[f][low[f]][:, :2])
     valid = np.zeros(F, bool)
@@ -214,7 +162,7 @@ def _torques(skel, masses, geometry, w, p, r, d, verts, low, valid) -> dict[str,
         pts, nodes = [], []
         for n in np.unique(node[low[f].any(-1)]):  # per node: its contact points' hull vertices
             v = verts[f][(node[:, None] == n) & low[f]]
-            pts.append(v[_hull(v[:, :2])])
+            pts.append(v[hull_indices(v[:, :2])])
             nodes += [n] * len(pts[-1])
         if not pts:
             continue

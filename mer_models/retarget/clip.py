@@ -144,9 +144,22 @@ def physics_inputs(feats: np.ndarray, ref: Skeleton, geometry, fps: float, cfg, 
     return PhysicsInputs.of_reference(geometry, contacts, fps, cfg, ref)
 
 
+def balance_inputs(target: Skeleton, cfg, fps: float):
+    """:class:`~mer_models.solver.balance_term.BalanceInputs` of the registered robot whose skeleton
+    ``target`` is (its masses and collision model)."""
+    from mer_models.solver.balance_term import BalanceInputs
+
+    robot = as_robot(target.name)
+    if robot.skeleton.fingerprint != target.fingerprint:
+        raise MerError(f"--balance needs the registered robot's masses; {target.name!r} was given as an edited skeleton",
+                       fix="retarget to the registered robot, or leave out --balance")  # fmt: skip
+    return BalanceInputs.of_robot(robot, cfg, fps)
+
+
 def _optimize_sequence(feats, scaled, rot_goals, ref: Skeleton, target: Skeleton, eta, energy: EnergyConfig, fps, iters, gn_iters, device,
-                       smooth: float = DEFAULT_SMOOTH, init: dict | None = None, physics=None):
-    """The optimiser on one whole motion; ``physics``: its :class:`~mer_models.solver.physics.PhysicsInputs`."""
+                       smooth: float = DEFAULT_SMOOTH, init: dict | None = None, physics=None, balance=None):
+    """The optimiser on one whole motion; ``physics``: its :class:`~mer_models.solver.physics.PhysicsInputs`;
+    ``balance``: its :class:`~mer_models.solver.balance_term.BalanceInputs`."""
     from mer_data.motion.samples import TrainingSample, collate
 
     batch = collate([TrainingSample(feats[:3].astype(np.float32), ref, target, eta)])
@@ -160,7 +173,7 @@ def _optimize_sequence(feats, scaled, rot_goals, ref: Skeleton, target: Skeleton
     if init is not None:
         warm = {k: torch.from_numpy(np.asarray(init[k])).float()[None].to(device) for k in ("q", "base_pos", "base_rot")}
     out = optimize_motion(energy, g, eta_t, goal, rot, iters=iters, gn_iters=gn_iters, fps=fps, goal_rot=goal_rot, rot_mask=rot_mask,
-                        smooth=smooth, init=warm, physics=physics)
+                        smooth=smooth, init=warm, physics=physics, balance=balance)
     return {k: out[k][0].double().cpu().numpy() for k in ("q", "base_pos", "base_rot")}
 
 
@@ -198,6 +211,7 @@ def retarget_features_many(
     bf16: bool = False,
     physics=None,
     geometry=None,
+    balance=None,
 ) -> list[RetargetResult]:
     """Retarget source features (F, Jr, 9) (world frame, at ``fps``) to every robot of ``targets``.
 
@@ -217,6 +231,9 @@ def retarget_features_many(
     also minimises its physical terms (:mod:`mer_models.solver.physics`; by default: every body
     above the floor and joints within their speed limits); None (the default): key points and
     orientations only. ``geometry``: each target's collision model (default: the registered robot's).
+    ``balance``: a :class:`~mer_models.solver.balance_term.BalanceConfig`: the optimiser (and ``refine``)
+    then holds the single-support ZMP in the stance foot and flight ballistic (a registered target's
+    masses; :mod:`mer_models.solver.balance_term`).
 
     Returns:
         One result per target, in the order of ``targets``.
@@ -238,6 +255,7 @@ def retarget_features_many(
         geos = list(geometry) if geometry is not None else [geometry_of(t) for t in tgts]
         first = physics_inputs(prepared[0][0], ref, geos[0], fps, physics)
         phys = [None if g is None else physics_inputs(None, ref, g, fps, physics, first.contacts) for g in geos]
+    bal = [None if balance is None else balance_inputs(t, balance, fps) for t in tgts]
     outs: list[dict[str, np.ndarray]]
     labels = [method] * len(tgts)
     notes: list[list[str]] = [[] for _ in tgts]
@@ -269,7 +287,7 @@ def retarget_features_many(
             for i, (t, eta, (feats, scaled, shift, rot_goals)) in enumerate(zip(tgts, etas, prepared)):
                 init = {"q": outs[i]["q"], "base_pos": np.asarray(outs[i]["base_pos"]) - shift, "base_rot": outs[i]["base_rot"]}
                 out = _optimize_sequence(feats, scaled, rot_goals, ref, t, eta, energy or EnergyConfig(), fps, 0, refine, device,
-                                         smooth=opt_smooth, init=init, physics=phys[i])  # fmt: skip
+                                         smooth=opt_smooth, init=init, physics=phys[i], balance=bal[i])  # fmt: skip
                 out["base_pos"] = out["base_pos"] + shift
                 outs[i] = out
     else:
@@ -277,7 +295,7 @@ def retarget_features_many(
         outs = []
         for i, (t, eta, (feats, scaled, shift, rot_goals)) in enumerate(zip(tgts, etas, prepared)):
             out = _optimize_sequence(feats, scaled, rot_goals, ref, t, eta, energy or EnergyConfig(), fps, opt_iters, opt_gn_iters,
-                                     device, smooth=opt_smooth, physics=phys[i])  # fmt: skip
+                                     device, smooth=opt_smooth, physics=phys[i], balance=bal[i])  # fmt: skip
             out["base_pos"] = out["base_pos"] + shift
             outs.append(out)
     results = []

@@ -116,6 +116,7 @@ def optimize_motion(
     init: dict[str, torch.Tensor] | None = None,
     stats: dict | None = None,
     physics: Any = None,
+    balance: Any = None,
 ) -> dict[str, torch.Tensor]:
     """Minimise the energy for a batch.
 
@@ -140,6 +141,7 @@ def optimize_motion(
         stats: receives ``gn_iterations``.
         physics: :class:`~mer_models.solver.physics.PhysicsInputs`: the physical terms in stage 1
             (floor, stance and swing feet, self-penetration, joint speed; :mod:`.physics`).
+        balance: :class:`~mer_models.solver.balance_term.BalanceInputs`: its rounds after stage 1 (``--balance``).
 
     Returns:
         ``q`` (B, T, Jt) [rad] inside the limits, ``base_pos`` (B, T, 3), ``base_rot`` (B, T, 3, 3),
@@ -217,6 +219,9 @@ def optimize_motion(
                 q0[rows], p0[rows], r0[rows] = qr, pr, rr
                 moved = torch.zeros(B, T, dtype=torch.bool, device=q0.device)
                 moved[rows] = torch.as_tensor(terms.free, device=q0.device)
+            if balance is not None and smooth > 0:
+                with solver_stage("balance"):
+                    q0, p0, r0 = balance.solve(cfg, graph, eta, goal, q0, p0, r0, smooth=smooth, tol=tol, **gkw)
     if iters > 0:
         z = limit_logit(q0, lower, upper).clone().requires_grad_(True)
         pos = p0.clone().requires_grad_(True)

@@ -129,3 +129,19 @@ def test_a_robot_without_lafan1_data_is_a_source_in_mers_own_layout(tmp_path, ca
                        "-o", tmp_path / "h1.csv")  # fmt: skip
     assert code == 0, err
     assert np.loadtxt(tmp_path / "h1.csv", delimiter=",").shape == (40, 7 + 19)
+
+
+def test_balance_runs_in_the_optimiser_and_is_refused_without_one(tmp_path, capsys):
+    """``--balance`` (docs/model.md §Balance): the optimiser writes the motion; a run with no optimiser
+    stage (the model alone) and a dataset run (not wired yet) are refused before any work."""
+    src = synthetic_csv(tmp_path / "walk.csv", frames=12)
+    code, _, err = run(capsys, "retarget", src, "--source", "g1", "--target", "g1", "--method", "optimize", "--no-physics", "--balance",
+                       "-o", tmp_path / "b.csv")  # fmt: skip
+    assert code == 0, err
+    assert np.loadtxt(tmp_path / "b.csv", delimiter=",").shape[0] == 12
+    code, _, err = run(capsys, "retarget", src, "--source", "g1", "--target", "g1", "--method", "diffusion", "--balance", "-o", tmp_path / "d.csv")
+    assert code == 1 and "--balance works in the optimiser" in err and "--method optimize" in err, err
+    assert not (tmp_path / "d.csv").exists()
+    code, _, err = run(capsys, "retarget", "--input", tmp_path, "--source", "g1", "--targets", "g1", "--out", tmp_path / "ds", "--balance")
+    assert code == 1 and "not yet wired into a dataset run" in err, err
+    assert not (tmp_path / "ds").exists()
