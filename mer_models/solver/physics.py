@@ -330,9 +330,9 @@ class Physics:
             jws.append(self.sw["w_self"] * active)
         return nodes, points, dirs, res, jws, (col_nodes, col_dirs, col_res, col_w)
 
-    def cost(self, pos: torch.Tensor, rot: torch.Tensor, qd: torch.Tensor, state: dict) -> torch.Tensor:
-        """(B, T) the terms' cost at a pose (the neighbours and anchors of ``state``)."""
-        _, _, _, res, _, (_, _, col_res, _) = self._rows(pos, rot, state)
+    def cost(self, pos: torch.Tensor, rot: torch.Tensor, qd: torch.Tensor, state: dict, rows: tuple | None = None) -> torch.Tensor:
+        """(B, T) the terms' cost at a pose (the neighbours and anchors of ``state``; ``rows``: its rows, if made)."""
+        _, _, _, res, _, (_, _, col_res, _) = self._rows(pos, rot, state) if rows is None else rows
         out = sum((r**2).sum(-1) for r in res)
         for r in col_res:
             out = out + r**2
@@ -344,10 +344,12 @@ class Physics:
         """The stance no-slip term's Gauss-Newton parts (:func:`.stance.slip_terms`), or None."""
         return None if state.get("slip") is None else stance.slip_terms(self, pos, rot, state["slip"])
 
-    def linearise(self, pos: torch.Tensor, rot: torch.Tensor, qd: torch.Tensor, state: dict) -> tuple[torch.Tensor, torch.Tensor]:
-        """The terms' Gauss-Newton normal equations: ``J^T J`` (B, T, n, n) and ``J^T r`` (B, T, n)."""
+    def linearise(self, pos: torch.Tensor, rot: torch.Tensor, qd: torch.Tensor, state: dict, with_cost: bool = False):
+        """The terms' Gauss-Newton normal equations: ``J^T J`` (B, T, n, n) and ``J^T r`` (B, T, n); with
+        ``with_cost`` also :meth:`cost` at this pose (B, T), from the same rows."""
         B, T, J = pos.shape[:3]
-        nodes, points, dirs, res, jws, (col_nodes, col_dirs, col_res, col_w) = self._rows(pos, rot, state)
+        rows_all = self._rows(pos, rot, state)
+        nodes, points, dirs, res, jws, (col_nodes, col_dirs, col_res, col_w) = rows_all
         axes_w = (rot @ self.axes[:, None, :, :, None]).squeeze(-1)  # (B, T, J, 3)
         D = self.fold.shape[-1]
         n_cols = D + 6
@@ -390,7 +392,7 @@ class Physics:
             rr = torch.cat(resid, 2)
             h = h + jac.transpose(-1, -2) @ jac
             g = g + (jac.transpose(-1, -2) @ rr[..., None])[..., 0]
-        return h, g
+        return (h, g, self.cost(pos, rot, qd, state, rows_all)) if with_cost else (h, g)
 
     # ---- joint speed: couples neighbouring frames exactly (coupled_lm_ik only) ----------------------------
     def _step_limit(self, cols: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
