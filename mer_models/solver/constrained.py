@@ -35,6 +35,7 @@ import torch
 from mer_data.kinematics.collision import lowest_points, pair_depths
 from mer_models.batch import batch_fk
 
+from .faces import face_points, fix_faces
 from .ik import coupled_lm_ik
 from .repair import SELF_POINTS, widen
 from .stance import lowest_foot_points
@@ -80,6 +81,15 @@ def _entries(known: torch.Tensor, pairs: torch.Tensor, shift: torch.Tensor):
     return (bi, ti, slot, pairs[ki, 0], pairs[ki, 1]), K, per_slot
 
 
+def _along_faces(model: Any, pos: torch.Tensor, rot: torch.Tensor, faces: dict, K: int) -> torch.Tensor:
+    """(B, T, K) the depth [m] of the entries of ``faces`` (:func:`.faces.fix_faces`) along their faces, ``-inf`` elsewhere."""
+    bi, ti, slot, _, _ = faces["entries"]
+    depth = face_points(model, pos, rot, faces)[0]
+    out = depth.new_full((*pos.shape[:2], K), float("-inf"))
+    out[bi, ti, faces["pair"]] = depth[bi, ti, slot]
+    return out
+
+
 @torch.no_grad()
 def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: torch.Tensor, base_pos: torch.Tensor,
               base_rot: torch.Tensor, *, physics: Any, smooth: float, tol: float, goal_rot: torch.Tensor | None = None,
@@ -116,13 +126,9 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
     known = torch.zeros(B, T, Kp, dtype=torch.bool, device=dev)
     search = torch.ones(B, T, dtype=torch.bool, device=dev)
     rounds, worst = 0, q.new_zeros(B)
+    faces = None
     for rnd in range(c.al_rounds + 1):
         low = lowest_points(model, pos, rot)[0]  # (B, T, S)
-        d = q.new_zeros(B, T, 0)
-        if Kp:
-            where = (search[..., None] | known) if rnd else None
-            d = pair_depths(model, pos, rot, margin=c.self_margin + NEAR_M, which=SELF_POINTS, where=where) + c.self_margin
-            known |= d > -NEAR_M
         foot_z = torch.stack([low[..., f].amin(-1) if len(f) else low.new_full((B, T), float("inf")) for f in feet], -1)
         up = (foot_z - c.hover) * down  # (B, T, 2) > 0: hovering
         slip, slide = None, q.new_zeros(B, T)
@@ -131,12 +137,28 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
             mask = contacts[:, 1:] & contacts[:, :-1]  # (B, T-1, 2)
             slip = {"shape": shape, "vert": vert, "mask": mask, "w": c.rho * c.xy_weight * cfg.w_kp}
             slide[:, :-1] = _slide(model, pos, rot, shape, vert, mask)
+        slide = torch.where(slide > SLIDE_TOL_M, slide, torch.zeros_like(slide))
+        d = q.new_zeros(B, T, 0)
+        if Kp:
+            d = None
+            if faces is not None and rnd < c.al_rounds:  # the known entries along their round's faces (.faces: an upper bound)
+                d = _along_faces(model, pos, rot, faces, Kp) + c.self_margin
+                rest = torch.stack([(-low).amax(-1), d.amax(-1), up.amax(-1), slide], -1)
+                if not bool((rest > TOLERANCE_M).any()):
+                    d = None  # about to stop: every pair looked at first, new ones included
+            if d is None:
+                where = ((search[..., None] & cand) | known) if rnd else None
+                reach = NEAR_M if rnd else NEAR_M + c.al_search
+                d = pair_depths(model, pos, rot, margin=c.self_margin + reach, which=SELF_POINTS, where=where) + c.self_margin
+                if not rnd:  # the later rounds look only at the (frame, pair) entries within al_search of active now
+                    cand = d > -(NEAR_M + c.al_search)
+                known |= d > -NEAR_M
+                search = torch.zeros_like(search)  # the frames moved since this look
         if rnd:  # multiplier updates
             s_floor = (s_floor - low).clamp_min(0)
             s_self = torch.where(known, (s_self + d).clamp_min(0), torch.zeros_like(s_self))
             s_z = (s_z + up).clamp_min(0) * down
         viol = torch.stack([(-low).amax(-1), d.amax(-1) if Kp else q.new_zeros(B, T), up.amax(-1), slide], -1)
-        viol[..., 3] = torch.where(viol[..., 3] > SLIDE_TOL_M, viol[..., 3], torch.zeros_like(viol[..., 3]))
         worst = viol.clamp_min(0).amax((1, 2))
         if rnd == c.al_rounds or not bool((viol > TOLERANCE_M).any()):
             break
@@ -146,11 +168,15 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
         free = widen(active[..., None], c.al_reach)[..., 0] if c.al_reach >= 0 else torch.ones_like(active)
         entries, slots, s_slot = _entries(known, pairs, s_self)
         al = {"floor": s_floor, "entries": entries, "slots": slots, "self": s_slot, "stance_z": s_z, "anchor": [None, None], "slip": slip}
+        faces = None
+        if entries is not None and c.fixed_faces:  # the self rows along faces chosen now (.faces)
+            faces = al["faces"] = fix_faces(model, pos, rot, entries, slots, SELF_POINTS)
+            faces["pair"] = known.nonzero(as_tuple=True)[2]
         terms = dataclasses.replace(physics, cfg=terms_cfg, al=al, pairs=None, pair_mask=None)
         q, base_pos, base_rot = coupled_lm_ik(cfg, graph, eta, goal, q, base_pos, base_rot, iters=c.al_iters, smooth=smooth, tol=tol, change_of=plain, change_smooth=smooth * c.al_smooth,
                                               physics=terms, hold=~free, goal_rot=goal_rot, rot_mask=rot_mask)  # fmt: skip
         pos, rot = batch_fk(graph, q, base_pos, base_rot)
-        search, rounds = free, rnd + 1
+        search, rounds = search | free, rnd + 1
     if stats is not None:
         stats["rounds"], stats["violation"] = rounds, worst
     return q, base_pos, base_rot

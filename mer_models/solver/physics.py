@@ -48,6 +48,7 @@ import torch
 from mer_data.kinematics.collision import contact_points, pair_contacts
 
 from . import goal_edits, repair, stance
+from .faces import face_points
 from .goal_edits import phase_mean
 from .repair import SELF_POINTS
 
@@ -90,6 +91,8 @@ class PhysicsConfig:
     hover: float = 0.005  # constraints: a stance foot's lowest point at most this high [m] while the source's foot is down
     al_reach: int = 4  # constraints: frames this far from an active constraint move with it; the rest are held
     xy_weight: float = 1.0  # constraints: the stance anchor's weight, relative to rho (a penalty: its anchor moves each round)
+    al_search: float = 0.03  # constraints: after the first round, pairs are looked for only among the entries this much [m] farther than active at its start
+    fixed_faces: bool = True  # constraints: a round's self rows along the separating faces chosen at its start (.faces)
     stance_xy: bool = True  # constraints: a stance foot's node held at its phase's mean x, y (of the plain solution)
 
     def __post_init__(self) -> None:
@@ -316,7 +319,9 @@ class Physics:
         # self-penetration: the deepest points
         entries = state.get("self")  # the contacts found at this iteration's start, measured at this pose
         slots = al["slots"] if "slots" in al else c.max_contacts
-        ca = contact_points(self.model, pos, rot, entries, slots, SELF_POINTS) if c.w_self > 0 and entries is not None else None
+        ca = None
+        if c.w_self > 0 and entries is not None:  # the constraint method's rounds: along faces fixed at the round's start
+            ca = face_points(self.model, pos, rot, al["faces"], self.verts) if "faces" in al else contact_points(self.model, pos, rot, entries, slots, SELF_POINTS)
         if ca is not None:
             depth, pt, normal, na, nb = ca  # (B, T, K) ...
             if "self" in al:
