@@ -80,3 +80,38 @@ def test_the_constraints_lift_a_sunken_reference_out_of_the_floor():
     assert m["body_floor_frames"] == 0.0 and m["floor_depth_max"] < 0.01
     assert m["hover_frames"] == 0.0
     assert m["g_mpbpe"] < 0.06
+
+
+def test_fixed_faces_give_the_separating_axis_depth_and_bound_it_after_a_move():
+    """:mod:`mer_models.solver.faces` on TALOS (hulls) in random poses: at the pose where the faces are
+    fixed, each entry's depth, point and normal are :func:`contact_points`' separating-axis ones; after
+    the pose moves, the depth along the fixed face is never below the separating-axis depth (the least
+    overlap over every face), so holding it under a margin holds the metric's bound too."""
+    from mer_data.kinematics.collision import contact_points, pair_contacts
+    from mer_models.batch import batch_fk
+    from mer_models.solver.faces import face_points, fix_faces
+
+    T = 6
+    r, P, q = _problem("talos", T, 5)
+    model = collision_model(r)
+    base_pos = torch.zeros(1, T, 3, dtype=torch.float64)
+    base_rot = torch.eye(3, dtype=torch.float64).expand(1, T, 3, 3).clone()
+    pos, rot = batch_fk(P.graph, q, base_pos, base_rot)
+    found = pair_contacts(model, pos, rot, margin=0.05, top=8, which="sat")
+    assert found is not None
+    entries, (depth, point, normal, na, nb) = found
+    K = depth.shape[-1]
+    faces = fix_faces(model, pos, rot, entries, K)
+    fd, fp, fn, fa, fb = face_points(model, pos, rot, faces)
+    bi, ti, ki = entries[:3]
+    assert len(bi) >= 10 and bool((depth[bi, ti, ki] > 0).any())  # some pairs overlap, some do not
+    torch.testing.assert_close(fd[bi, ti, ki], depth[bi, ti, ki], atol=1e-9, rtol=0)
+    torch.testing.assert_close(fn[bi, ti, ki], normal[bi, ti, ki], atol=1e-9, rtol=0)
+    torch.testing.assert_close(fp[bi, ti, ki], point[bi, ti, ki], atol=1e-9, rtol=0)
+    assert torch.equal(fa[bi, ti, ki], na[bi, ti, ki]) and torch.equal(fb[bi, ti, ki], nb[bi, ti, ki])
+    gen = torch.Generator().manual_seed(1)
+    moved = q + 0.05 * torch.randn(q.shape, generator=gen, dtype=torch.float64)
+    pos2, rot2 = batch_fk(P.graph, moved, base_pos, base_rot)
+    sat = contact_points(model, pos2, rot2, entries, K, "sat")[0][bi, ti, ki]
+    along = face_points(model, pos2, rot2, faces)[0][bi, ti, ki]
+    assert bool((along >= sat - 1e-9).all()) and bool((along > sat + 1e-4).any())  # a bound, not the same
