@@ -143,7 +143,7 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
             d = None
             if faces is not None and rnd < c.al_rounds:  # the known entries along their round's faces (.faces: an upper bound)
                 d = _along_faces(model, pos, rot, faces, Kp) + c.self_margin
-                rest = torch.stack([(-low).amax(-1), d.amax(-1), up.amax(-1), slide], -1)
+                rest = torch.stack([(-low).amax(-1), d.amax(-1), up.amax(-1)], -1)
                 if not bool((rest > TOLERANCE_M).any()):
                     d = None  # about to stop: every pair looked at first, new ones included
             if d is None:
@@ -160,7 +160,7 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
             s_z = (s_z + up).clamp_min(0) * down
         viol = torch.stack([(-low).amax(-1), d.amax(-1) if Kp else q.new_zeros(B, T), up.amax(-1), slide], -1)
         worst = viol.clamp_min(0).amax((1, 2))
-        if rnd == c.al_rounds or not bool((viol > TOLERANCE_M).any()):
+        if rnd == c.al_rounds or not bool((viol[..., :3] > TOLERANCE_M).any()):  # the constraints met (sliding is a penalty)
             break
         active = (viol > 0).any(-1) | (s_floor > 0).any(-1) | (s_self > 0).any(-1) | (s_z > 0).any(-1)
         if slip is not None:
