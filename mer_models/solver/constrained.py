@@ -90,6 +90,53 @@ def _along_faces(model: Any, pos: torch.Tensor, rot: torch.Tensor, faces: dict, 
     return out
 
 
+def _segments(free: torch.Tensor, gap: int) -> list[tuple[int, int]]:
+    """The frame ranges [a, b) a round solves: each run of frames free in some sample (``free`` (B, T)),
+    with one held frame on each side, runs closer than ``gap`` frames joined; the whole window when
+    they cover most of it (one solve is then cheaper than several)."""
+    T = free.shape[1]
+    idx = free.any(0).nonzero().flatten().tolist()
+    if not idx:
+        return []
+    runs = [[max(idx[0] - 1, 0), idx[0] + 2]]
+    for t in idx[1:]:
+        if t - 1 <= runs[-1][1] + gap:
+            runs[-1][1] = t + 2
+        else:
+            runs.append([t - 1, t + 2])
+    runs = [(a, min(b, T)) for a, b in runs]
+    return [(0, T)] if sum(b - a for a, b in runs) > 0.75 * T else runs
+
+
+def _window(a: int, b: int, **tensors: torch.Tensor | None) -> dict:
+    """Frames a..b-1 (dimension 1) of each tensor (None stays None)."""
+    return {k: None if v is None else v[:, a:b] for k, v in tensors.items()}
+
+
+def _window_terms(terms: Any, a: int, b: int) -> Any:
+    """The physical terms (:class:`~.physics.PhysicsInputs` with a round's state ``al``) of frames a..b-1."""
+    T = terms.al["floor"].shape[1]
+    if (a, b) == (0, T):
+        return terms
+    al = dict(terms.al)
+    for k in ("floor", "self", "stance_z"):
+        al[k] = al[k][:, a:b]
+    if al["entries"] is not None:
+        keep = (al["entries"][1] >= a) & (al["entries"][1] < b)
+        bi, ti, slot, sa, sb = (x[keep] for x in al["entries"])
+        al["entries"] = (bi, ti - a, slot, sa, sb) if len(bi) else None
+        if "faces" in al:
+            f = al["faces"]
+            al["faces"] = {**f, "entries": al["entries"], **{k: f[k][keep] for k in ("reach", "other", "n", "d", "pair")}}
+            if al["entries"] is None:
+                del al["faces"]
+    if al.get("slip") is not None:
+        sl = al["slip"]
+        al["slip"] = {**sl, "shape": sl["shape"][:, a:b], "vert": sl["vert"][:, a:b], "mask": sl["mask"][:, a : b - 1]}
+    contacts = None if terms.contacts is None else terms.contacts[:, a:b]
+    return dataclasses.replace(terms, contacts=contacts, al=al)
+
+
 @torch.no_grad()
 def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: torch.Tensor, base_pos: torch.Tensor,
               base_rot: torch.Tensor, *, physics: Any, smooth: float, tol: float, goal_rot: torch.Tensor | None = None,
@@ -162,9 +209,12 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
         worst = viol.clamp_min(0).amax((1, 2))
         if rnd == c.al_rounds or not bool((viol[..., :3] > TOLERANCE_M).any()):  # the constraints met (sliding is a penalty)
             break
-        active = (viol > 0).any(-1) | (s_floor > 0).any(-1) | (s_self > 0).any(-1) | (s_z > 0).any(-1)
-        if slip is not None:
-            active |= contacts.any(-1)
+        if rnd >= c.al_focus >= 0:  # the later rounds: only where a constraint is not met yet (the rest held)
+            active = (viol[..., :3] > TOLERANCE_M).any(-1)
+        else:
+            active = (viol > 0).any(-1) | (s_floor > 0).any(-1) | (s_self > 0).any(-1) | (s_z > 0).any(-1)
+            if slip is not None:
+                active |= contacts.any(-1)
         free = widen(active[..., None], c.al_reach)[..., 0] if c.al_reach >= 0 else torch.ones_like(active)
         entries, slots, s_slot = _entries(known, pairs, s_self)
         al = {"floor": s_floor, "entries": entries, "slots": slots, "self": s_slot, "stance_z": s_z, "anchor": [None, None], "slip": slip}
@@ -173,8 +223,16 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
             faces = al["faces"] = fix_faces(model, pos, rot, entries, slots, SELF_POINTS)
             faces["pair"] = known.nonzero(as_tuple=True)[2]
         terms = dataclasses.replace(physics, cfg=terms_cfg, al=al, pairs=None, pair_mask=None)
-        q, base_pos, base_rot = coupled_lm_ik(cfg, graph, eta, goal, q, base_pos, base_rot, iters=c.al_iters, smooth=smooth, tol=tol, change_of=plain, change_smooth=smooth * c.al_smooth,
-                                              physics=terms, hold=~free, goal_rot=goal_rot, rot_mask=rot_mask)  # fmt: skip
+        for a, b in _segments(free, c.al_gap):  # each run of free frames on its own, with a held frame at each end
+            sub = _window(a, b, goal=goal, q=q, base_pos=base_pos, base_rot=base_rot, plain=plain, hold=~free, goal_rot=goal_rot)
+            qs, ps, rs = coupled_lm_ik(cfg, graph, eta, sub["goal"], sub["q"], sub["base_pos"], sub["base_rot"], iters=c.al_iters, smooth=smooth, tol=tol,
+                                       change_of=sub["plain"], change_smooth=smooth * c.al_smooth, physics=_window_terms(terms, a, b),
+                                       hold=sub["hold"], goal_rot=sub["goal_rot"], rot_mask=rot_mask)  # fmt: skip
+            if (a, b) == (0, T):
+                q, base_pos, base_rot = qs, ps, rs
+            else:
+                q, base_pos, base_rot = q.clone(), base_pos.clone(), base_rot.clone()
+                q[:, a:b], base_pos[:, a:b], base_rot[:, a:b] = qs, ps, rs
         pos, rot = batch_fk(graph, q, base_pos, base_rot)
         search, rounds = search | free, rnd + 1
     if stats is not None:

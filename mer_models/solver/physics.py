@@ -92,6 +92,8 @@ class PhysicsConfig:
     al_reach: int = 4  # constraints: frames this far from an active constraint move with it; the rest are held
     xy_weight: float = 1.0  # constraints: the stance anchor's weight, relative to rho (a penalty: its anchor moves each round)
     al_search: float = 0.03  # constraints: after the first round, pairs are looked for only among the entries this much [m] farther than active at its start
+    al_focus: int = 2  # constraints: from this round on only frames near a constraint not yet met move (-1: never)
+    al_gap: int = 8  # constraints: runs of such frames closer than this are solved together
     fixed_faces: bool = True  # constraints: a round's self rows along the separating faces chosen at its start (.faces)
     stance_xy: bool = True  # constraints: a stance foot's node held at its phase's mean x, y (of the plain solution)
 

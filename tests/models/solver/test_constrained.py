@@ -115,3 +115,20 @@ def test_fixed_faces_give_the_separating_axis_depth_and_bound_it_after_a_move():
     sat = contact_points(model, pos2, rot2, entries, K, "sat")[0][bi, ti, ki]
     along = face_points(model, pos2, rot2, faces)[0][bi, ti, ki]
     assert bool((along >= sat - 1e-9).all()) and bool((along > sat + 1e-4).any())  # a bound, not the same
+
+
+def test_a_round_solves_runs_of_free_frames_with_a_held_frame_each_side():
+    """:func:`mer_models.solver.constrained._segments`: runs of frames free in any sample, one held
+    frame either side, close runs joined, the whole window once the runs cover most of it."""
+    from mer_models.solver.constrained import _segments
+
+    free = torch.zeros(2, 100, dtype=torch.bool)
+    assert _segments(free, 8) == []
+    free[0, 10:20] = True
+    free[1, 24:30] = True  # 4 frames after the first run: joined
+    free[0, 60:62] = True
+    free[1, 99] = True  # the last frame: no held frame after it
+    assert _segments(free, 8) == [(9, 31), (59, 63), (98, 100)]
+    assert _segments(free, 0) == [(9, 21), (23, 31), (59, 63), (98, 100)]
+    free[0, 5:90] = True
+    assert _segments(free, 8) == [(0, 100)]
