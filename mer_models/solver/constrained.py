@@ -16,9 +16,14 @@ by an augmented Lagrangian around the whole-window Levenberg-Marquardt of
 ``sqrt(rho) min(0, c(x) - s)`` per constraint ``c(x) >= 0`` (the shift ``s = lambda / rho`` is the
 multiplier, so rows exist only where a constraint is active and the block-tridiagonal system is
 kept), then updates ``s <- max(0, s - c(x))``; at most ``al_rounds`` updates, none once every
-constraint is met to :data:`TOLERANCE_M`. The rounds add a temporal prior on the *change* from the
-plain solution (``al_smooth`` times the solve's), so the change is smooth without pulling what the
-plain solve fitted, and hold frames farther than ``al_reach`` from every active constraint. The base
+constraint is met to :data:`TOLERANCE_M` (sliding, a penalty, does not keep the rounds going). The
+rounds add a temporal prior on the *change* from the plain solution (``al_smooth`` times the
+solve's), so the change is smooth without pulling what the plain solve fitted, and hold frames
+farther than ``al_reach`` from every active constraint; from round ``al_focus`` on, from every
+constraint not yet met, and each run of the frames that move is solved on its own (:func:`_segments`).
+Within a round a self row is the overlap along the separating face chosen at its start
+(:mod:`.faces`), and pairs are looked for again (among those within ``al_search`` at the first
+round) only before the rounds would stop. The base
 is first raised where a foot is in the floor (a start the floor's linearisation holds from). Joint
 limits are the solver's projection; joint speed is the solver's coupled term and the feasibility
 pass after (:mod:`mer_models.retarget.feasible`) takes the rest exactly. What each choice measured:
