@@ -133,6 +133,10 @@ def _window_terms(terms: Any, a: int, b: int) -> Any:
         if "faces" in al:
             f = al["faces"]
             al["faces"] = {**f, "entries": al["entries"], **{k: f[k][keep] for k in ("reach", "other", "n", "d", "pair")}}
+            if f["exact"] is not None:
+                kx = (f["exact"][1] >= a) & (f["exact"][1] < b)
+                ex = tuple(x[kx] for x in f["exact"])
+                al["faces"]["exact"] = (ex[0], ex[1] - a, *ex[2:]) if bool(kx.any()) else None
             if al["entries"] is None:
                 del al["faces"]
     if al.get("slip") is not None:
@@ -193,7 +197,7 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
         d = q.new_zeros(B, T, 0)
         if Kp:
             d = None
-            if faces is not None and rnd < c.al_rounds:  # the known entries along their round's faces (.faces: an upper bound)
+            if faces is not None and rnd < c.al_rounds and (c.al_look <= 0 or rnd % c.al_look):  # the known entries along their round's faces (.faces: an upper bound)
                 d = _along_faces(model, pos, rot, faces, Kp) + c.self_margin
                 rest = torch.stack([(-low).amax(-1), d.amax(-1), up.amax(-1)], -1)
                 if not bool((rest > TOLERANCE_M).any()):
@@ -225,7 +229,7 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
         al = {"floor": s_floor, "entries": entries, "slots": slots, "self": s_slot, "stance_z": s_z, "anchor": [None, None], "slip": slip}
         faces = None
         if entries is not None and c.fixed_faces:  # the self rows along faces chosen now (.faces)
-            faces = al["faces"] = fix_faces(model, pos, rot, entries, slots, SELF_POINTS)
+            faces = al["faces"] = fix_faces(model, pos, rot, entries, slots, SELF_POINTS, exact_over=c.face_exact)
             faces["pair"] = known.nonzero(as_tuple=True)[2]
         terms = dataclasses.replace(physics, cfg=terms_cfg, al=al, pairs=None, pair_mask=None)
         for a, b in _segments(free, c.al_gap):  # each run of free frames on its own, with a held frame at each end

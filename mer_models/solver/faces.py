@@ -22,10 +22,12 @@ from mer_data.kinematics.collision import contact_points
 __all__ = ["fix_faces", "face_points"]
 
 
-def fix_faces(model: Any, pos: torch.Tensor, rot: torch.Tensor, entries: tuple, K: int, which: str = "sat") -> dict:
+def fix_faces(model: Any, pos: torch.Tensor, rot: torch.Tensor, entries: tuple, K: int, which: str = "sat", exact_over: float = float("inf")) -> dict:
     """Each entry's reaching shape and the other body's separating plane at node poses ``pos``
     (B, T, J, 3), ``rot`` (B, T, J, 3, 3): ``{"entries", "K", "reach" (E,) shape, "other" (E,) node,
-    "n" (E, 3), "d" (E,)}``, the plane ``n . x + d = 0`` in the other node's frame (``n`` outward)."""
+    "n" (E, 3), "d" (E,), "exact"}``, the plane ``n . x + d = 0`` in the other node's frame (``n``
+    outward); ``exact``: the entries deeper than ``exact_over`` [m] now, whose faces
+    :func:`face_points` chooses again at every pose (a deep overlap's best face changes as it opens)."""
     depth, point, normal, na, nb = contact_points(model, pos, rot, entries, K, which)
     bi, ti, ki, sa, sb = entries
     node = torch.as_tensor(model.node, device=pos.device)
@@ -35,7 +37,9 @@ def fix_faces(model: Any, pos: torch.Tensor, rot: torch.Tensor, entries: tuple, 
     n = torch.einsum("eji,ej->ei", ro, normal[bi, ti, ki])
     p = torch.einsum("eji,ej->ei", ro, point[bi, ti, ki] - to)
     d = -depth[bi, ti, ki] - (n * p).sum(-1)  # the deepest vertex's signed distance is minus the depth
-    return {"entries": entries, "K": K, "reach": reach, "other": other, "n": n, "d": d}
+    deep = depth[bi, ti, ki] > exact_over
+    exact = tuple(x[deep] for x in entries) if bool(deep.any()) else None
+    return {"entries": entries, "K": K, "reach": reach, "other": other, "n": n, "d": d, "exact": exact}
 
 
 def face_points(model: Any, pos: torch.Tensor, rot: torch.Tensor, faces: dict, verts: torch.Tensor | None = None):
@@ -64,4 +68,9 @@ def face_points(model: Any, pos: torch.Tensor, rot: torch.Tensor, faces: dict, v
     out_p[bi, ti, ki] = world[e, v]
     out_n[bi, ti, ki] = torch.einsum("eij,ej->ei", ro, faces["n"])
     out_a[bi, ti, ki], out_b[bi, ti, ki] = rn, other
-    return out_d, out_p, out_n, out_a, out_b
+    outs = (out_d, out_p, out_n, out_a, out_b)
+    if faces.get("exact") is not None:  # the deep entries: the separating-axis depth itself
+        ex = faces["exact"]
+        for o, x in zip(outs, contact_points(model, pos, rot, ex, K, "sat")):
+            o[ex[0], ex[1], ex[2]] = x[ex[0], ex[1], ex[2]]
+    return outs

@@ -132,3 +132,29 @@ def test_a_round_solves_runs_of_free_frames_with_a_held_frame_each_side():
     assert _segments(free, 0) == [(9, 21), (23, 31), (59, 63), (98, 100)]
     free[0, 5:90] = True
     assert _segments(free, 8) == [(0, 100)]
+
+
+def test_deep_entries_keep_the_exact_separating_axis_depth():
+    """``fix_faces(exact_over=0)``: the entries overlapping at the fixing pose are measured by the
+    separating-axis depth itself at any later pose; the others along their fixed faces."""
+    from mer_data.kinematics.collision import contact_points, pair_contacts
+    from mer_models.batch import batch_fk
+    from mer_models.solver.faces import face_points, fix_faces
+
+    T = 6
+    r, P, q = _problem("talos", T, 5)
+    model = collision_model(r)
+    base_pos, base_rot = torch.zeros(1, T, 3, dtype=torch.float64), torch.eye(3, dtype=torch.float64).expand(1, T, 3, 3).clone()
+    pos, rot = batch_fk(P.graph, q, base_pos, base_rot)
+    entries, (depth, *_) = pair_contacts(model, pos, rot, margin=0.05, top=8, which="sat")
+    K = depth.shape[-1]
+    faces = fix_faces(model, pos, rot, entries, K, exact_over=0.0)
+    bi, ti, ki = entries[:3]
+    deep = depth[bi, ti, ki] > 0
+    assert bool(deep.any()) and not bool(deep.all())
+    moved = q + 0.05 * torch.randn(q.shape, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+    pos2, rot2 = batch_fk(P.graph, moved, base_pos, base_rot)
+    sat = contact_points(model, pos2, rot2, entries, K, "sat")[0][bi, ti, ki]
+    along = face_points(model, pos2, rot2, faces)[0][bi, ti, ki]
+    torch.testing.assert_close(along[deep], sat[deep], atol=1e-12, rtol=0)
+    assert bool((along[~deep] >= sat[~deep] - 1e-9).all())
