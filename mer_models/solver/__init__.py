@@ -7,7 +7,7 @@
 * :mod:`.tridiagonal` - the block-tridiagonal solve of whole windows;
 * :mod:`.physics` - the physical terms (floor, joint speed, stance feet, self-penetration), as penalties
   (with :mod:`.goal_edits` and :mod:`.repair`; the default) or as constraints (:mod:`.constrained`,
-  with the stance foot's no-slip term :mod:`.stance`);
+  with the stance foot's no-slip term :mod:`.stance` and its self rows along faces fixed per round :mod:`.faces`);
 * :mod:`.balance_term` - the balance term (``--balance``, opt-in): the ZMP in the support polygon and
   flight ballistic, rounds of whole-window iterations after the solve.
 """

@@ -16,9 +16,14 @@ by an augmented Lagrangian around the whole-window Levenberg-Marquardt of
 ``sqrt(rho) min(0, c(x) - s)`` per constraint ``c(x) >= 0`` (the shift ``s = lambda / rho`` is the
 multiplier, so rows exist only where a constraint is active and the block-tridiagonal system is
 kept), then updates ``s <- max(0, s - c(x))``; at most ``al_rounds`` updates, none once every
-constraint is met to :data:`TOLERANCE_M`. The rounds add a temporal prior on the *change* from the
-plain solution (``al_smooth`` times the solve's), so the change is smooth without pulling what the
-plain solve fitted, and hold frames farther than ``al_reach`` from every active constraint. The base
+constraint is met to :data:`TOLERANCE_M` (sliding, a penalty, does not keep the rounds going). The
+rounds add a temporal prior on the *change* from the plain solution (``al_smooth`` times the
+solve's), so the change is smooth without pulling what the plain solve fitted, and hold frames
+farther than ``al_reach`` from every active constraint; from round ``al_focus`` on, from every
+constraint not yet met, and each run of the frames that move is solved on its own (:func:`_segments`).
+Within a round a self row is the overlap along the separating face chosen at its start
+(:mod:`.faces`), and pairs are looked for again (among those within ``al_search`` at the first
+round) only before the rounds would stop. The base
 is first raised where a foot is in the floor (a start the floor's linearisation holds from). Joint
 limits are the solver's projection; joint speed is the solver's coupled term and the feasibility
 pass after (:mod:`mer_models.retarget.feasible`) takes the rest exactly. What each choice measured:
@@ -35,6 +40,7 @@ import torch
 from mer_data.kinematics.collision import lowest_points, pair_depths
 from mer_models.batch import batch_fk
 
+from .faces import face_points, fix_faces
 from .ik import coupled_lm_ik
 from .repair import SELF_POINTS, widen
 from .stance import lowest_foot_points
@@ -80,6 +86,66 @@ def _entries(known: torch.Tensor, pairs: torch.Tensor, shift: torch.Tensor):
     return (bi, ti, slot, pairs[ki, 0], pairs[ki, 1]), K, per_slot
 
 
+def _along_faces(model: Any, pos: torch.Tensor, rot: torch.Tensor, faces: dict, K: int) -> torch.Tensor:
+    """(B, T, K) the depth [m] of the entries of ``faces`` (:func:`.faces.fix_faces`) along their faces, ``-inf`` elsewhere."""
+    bi, ti, slot, _, _ = faces["entries"]
+    depth = face_points(model, pos, rot, faces)[0]
+    out = depth.new_full((*pos.shape[:2], K), float("-inf"))
+    out[bi, ti, faces["pair"]] = depth[bi, ti, slot]
+    return out
+
+
+def _segments(free: torch.Tensor, gap: int) -> list[tuple[int, int]]:
+    """The frame ranges [a, b) a round solves: each run of frames free in some sample (``free`` (B, T)),
+    with one held frame on each side, runs closer than ``gap`` frames joined; the whole window when
+    they cover most of it (one solve is then cheaper than several)."""
+    T = free.shape[1]
+    idx = free.any(0).nonzero().flatten().tolist()
+    if not idx:
+        return []
+    runs = [[max(idx[0] - 1, 0), idx[0] + 2]]
+    for t in idx[1:]:
+        if t - 1 <= runs[-1][1] + gap:
+            runs[-1][1] = t + 2
+        else:
+            runs.append([t - 1, t + 2])
+    runs = [(a, min(b, T)) for a, b in runs]
+    return [(0, T)] if sum(b - a for a, b in runs) > 0.75 * T else runs
+
+
+def _window(a: int, b: int, **tensors: torch.Tensor | None) -> dict:
+    """Frames a..b-1 (dimension 1) of each tensor (None stays None)."""
+    return {k: None if v is None else v[:, a:b] for k, v in tensors.items()}
+
+
+def _window_terms(terms: Any, a: int, b: int) -> Any:
+    """The physical terms (:class:`~.physics.PhysicsInputs` with a round's state ``al``) of frames a..b-1."""
+    T = terms.al["floor"].shape[1]
+    if (a, b) == (0, T):
+        return terms
+    al = dict(terms.al)
+    for k in ("floor", "self", "stance_z"):
+        al[k] = al[k][:, a:b]
+    if al["entries"] is not None:
+        keep = (al["entries"][1] >= a) & (al["entries"][1] < b)
+        bi, ti, slot, sa, sb = (x[keep] for x in al["entries"])
+        al["entries"] = (bi, ti - a, slot, sa, sb) if len(bi) else None
+        if "faces" in al:
+            f = al["faces"]
+            al["faces"] = {**f, "entries": al["entries"], **{k: f[k][keep] for k in ("reach", "other", "n", "d", "pair")}}
+            if f["exact"] is not None:
+                kx = (f["exact"][1] >= a) & (f["exact"][1] < b)
+                ex = tuple(x[kx] for x in f["exact"])
+                al["faces"]["exact"] = (ex[0], ex[1] - a, *ex[2:]) if bool(kx.any()) else None
+            if al["entries"] is None:
+                del al["faces"]
+    if al.get("slip") is not None:
+        sl = al["slip"]
+        al["slip"] = {**sl, "shape": sl["shape"][:, a:b], "vert": sl["vert"][:, a:b], "mask": sl["mask"][:, a : b - 1]}
+    contacts = None if terms.contacts is None else terms.contacts[:, a:b]
+    return dataclasses.replace(terms, contacts=contacts, al=al)
+
+
 @torch.no_grad()
 def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: torch.Tensor, base_pos: torch.Tensor,
               base_rot: torch.Tensor, *, physics: Any, smooth: float, tol: float, goal_rot: torch.Tensor | None = None,
@@ -116,13 +182,9 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
     known = torch.zeros(B, T, Kp, dtype=torch.bool, device=dev)
     search = torch.ones(B, T, dtype=torch.bool, device=dev)
     rounds, worst = 0, q.new_zeros(B)
+    faces = None
     for rnd in range(c.al_rounds + 1):
         low = lowest_points(model, pos, rot)[0]  # (B, T, S)
-        d = q.new_zeros(B, T, 0)
-        if Kp:
-            where = (search[..., None] | known) if rnd else None
-            d = pair_depths(model, pos, rot, margin=c.self_margin + NEAR_M, which=SELF_POINTS, where=where) + c.self_margin
-            known |= d > -NEAR_M
         foot_z = torch.stack([low[..., f].amin(-1) if len(f) else low.new_full((B, T), float("inf")) for f in feet], -1)
         up = (foot_z - c.hover) * down  # (B, T, 2) > 0: hovering
         slip, slide = None, q.new_zeros(B, T)
@@ -131,26 +193,57 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
             mask = contacts[:, 1:] & contacts[:, :-1]  # (B, T-1, 2)
             slip = {"shape": shape, "vert": vert, "mask": mask, "w": c.rho * c.xy_weight * cfg.w_kp}
             slide[:, :-1] = _slide(model, pos, rot, shape, vert, mask)
+        slide = torch.where(slide > SLIDE_TOL_M, slide, torch.zeros_like(slide))
+        d = q.new_zeros(B, T, 0)
+        if Kp:
+            d = None
+            if faces is not None and rnd < c.al_rounds and (c.al_look <= 0 or rnd % c.al_look):  # the known entries along their round's faces (.faces: an upper bound)
+                d = _along_faces(model, pos, rot, faces, Kp) + c.self_margin
+                rest = torch.stack([(-low).amax(-1), d.amax(-1), up.amax(-1)], -1)
+                if not bool((rest > TOLERANCE_M).any()):
+                    d = None  # about to stop: every pair looked at first, new ones included
+            if d is None:
+                where = ((search[..., None] & cand) | known) if rnd else None
+                reach = NEAR_M if rnd else NEAR_M + c.al_search
+                d = pair_depths(model, pos, rot, margin=c.self_margin + reach, which=SELF_POINTS, where=where) + c.self_margin
+                if not rnd:  # the later rounds look only at the (frame, pair) entries within al_search of active now
+                    cand = d > -(NEAR_M + c.al_search)
+                known |= d > -NEAR_M
+                search = torch.zeros_like(search)  # the frames moved since this look
         if rnd:  # multiplier updates
             s_floor = (s_floor - low).clamp_min(0)
             s_self = torch.where(known, (s_self + d).clamp_min(0), torch.zeros_like(s_self))
             s_z = (s_z + up).clamp_min(0) * down
         viol = torch.stack([(-low).amax(-1), d.amax(-1) if Kp else q.new_zeros(B, T), up.amax(-1), slide], -1)
-        viol[..., 3] = torch.where(viol[..., 3] > SLIDE_TOL_M, viol[..., 3], torch.zeros_like(viol[..., 3]))
         worst = viol.clamp_min(0).amax((1, 2))
-        if rnd == c.al_rounds or not bool((viol > TOLERANCE_M).any()):
+        if rnd == c.al_rounds or not bool((viol[..., :3] > TOLERANCE_M).any()):  # the constraints met (sliding is a penalty)
             break
-        active = (viol > 0).any(-1) | (s_floor > 0).any(-1) | (s_self > 0).any(-1) | (s_z > 0).any(-1)
-        if slip is not None:
-            active |= contacts.any(-1)
+        if rnd >= c.al_focus >= 0:  # the later rounds: only where a constraint is not met yet (the rest held)
+            active = (viol[..., :3] > TOLERANCE_M).any(-1)
+        else:
+            active = (viol > 0).any(-1) | (s_floor > 0).any(-1) | (s_self > 0).any(-1) | (s_z > 0).any(-1)
+            if slip is not None:
+                active |= contacts.any(-1)
         free = widen(active[..., None], c.al_reach)[..., 0] if c.al_reach >= 0 else torch.ones_like(active)
         entries, slots, s_slot = _entries(known, pairs, s_self)
         al = {"floor": s_floor, "entries": entries, "slots": slots, "self": s_slot, "stance_z": s_z, "anchor": [None, None], "slip": slip}
+        faces = None
+        if entries is not None and c.fixed_faces:  # the self rows along faces chosen now (.faces)
+            faces = al["faces"] = fix_faces(model, pos, rot, entries, slots, SELF_POINTS, exact_over=c.face_exact)
+            faces["pair"] = known.nonzero(as_tuple=True)[2]
         terms = dataclasses.replace(physics, cfg=terms_cfg, al=al, pairs=None, pair_mask=None)
-        q, base_pos, base_rot = coupled_lm_ik(cfg, graph, eta, goal, q, base_pos, base_rot, iters=c.al_iters, smooth=smooth, tol=tol, change_of=plain, change_smooth=smooth * c.al_smooth,
-                                              physics=terms, hold=~free, goal_rot=goal_rot, rot_mask=rot_mask)  # fmt: skip
+        for a, b in _segments(free, c.al_gap):  # each run of free frames on its own, with a held frame at each end
+            sub = _window(a, b, goal=goal, q=q, base_pos=base_pos, base_rot=base_rot, plain=plain, hold=~free, goal_rot=goal_rot)
+            qs, ps, rs = coupled_lm_ik(cfg, graph, eta, sub["goal"], sub["q"], sub["base_pos"], sub["base_rot"], iters=c.al_iters, smooth=smooth, tol=tol,
+                                       change_of=sub["plain"], change_smooth=smooth * c.al_smooth, physics=_window_terms(terms, a, b),
+                                       hold=sub["hold"], goal_rot=sub["goal_rot"], rot_mask=rot_mask)  # fmt: skip
+            if (a, b) == (0, T):
+                q, base_pos, base_rot = qs, ps, rs
+            else:
+                q, base_pos, base_rot = q.clone(), base_pos.clone(), base_rot.clone()
+                q[:, a:b], base_pos[:, a:b], base_rot[:, a:b] = qs, ps, rs
         pos, rot = batch_fk(graph, q, base_pos, base_rot)
-        search, rounds = free, rnd + 1
+        search, rounds = search | free, rnd + 1
     if stats is not None:
         stats["rounds"], stats["violation"] = rounds, worst
     return q, base_pos, base_rot

@@ -299,8 +299,8 @@ def gauss_newton_ik(
         h, g = P.linearise(pos, rot, kp, ocols)
         if phys is not None:
             state = phys.freeze(pos, rot, qd)
-            cost = cost + phys.cost(pos, rot, qd, state)
-            ph, pg = phys.linearise(pos, rot, qd, state)
+            ph, pg, pc = phys.linearise(pos, rot, qd, state, with_cost=True)
+            cost = cost + pc
             h, g = h + ph, g + pg
         prior_h = torch.cat([reg + sm, P.zeros(B, 1, 6)], -1)
         g = g + torch.cat([reg * (qd - nominal) + sm * (qd - qbar), P.zeros(B, T, 6)], -1)
@@ -426,8 +426,8 @@ def coupled_lm_ik(
         c_speed = dense = None
         if phys is not None:  # the physical terms, their coupled parts held at this iterate
             state = phys.freeze(pos, rot, qd)
-            cost = frame_cost(fit, qd) + phys.cost(pos, rot, qd, state) + phys.speed_cost(qd, P.cols)
-            ph, pg = phys.linearise(pos, rot, qd, state)
+            ph, pg, pc = phys.linearise(pos, rot, qd, state, with_cost=True)  # cost and rows from one evaluation
+            cost = frame_cost(fit, qd) + pc + phys.speed_cost(qd, P.cols)
             h, g = h + ph, g + pg
             sp = phys.speed_terms(qd, P.cols)  # joint speed: exact coupling of neighbouring frames
             if sp is not None:

@@ -48,6 +48,7 @@ import torch
 from mer_data.kinematics.collision import contact_points, pair_contacts
 
 from . import goal_edits, repair, stance
+from .faces import face_points
 from .goal_edits import phase_mean
 from .repair import SELF_POINTS
 
@@ -90,6 +91,12 @@ class PhysicsConfig:
     hover: float = 0.005  # constraints: a stance foot's lowest point at most this high [m] while the source's foot is down
     al_reach: int = 4  # constraints: frames this far from an active constraint move with it; the rest are held
     xy_weight: float = 1.0  # constraints: the stance anchor's weight, relative to rho (a penalty: its anchor moves each round)
+    al_search: float = 0.03  # constraints: after the first round, pairs are looked for only among the entries this much [m] farther than active at its start
+    al_focus: int = 2  # constraints: from this round on only frames near a constraint not yet met move (-1: never)
+    al_gap: int = 8  # constraints: runs of such frames closer than this are solved together
+    al_look: int = 2  # constraints: pairs looked for anew every this many rounds (and before the rounds stop; 0: only then)
+    fixed_faces: bool = True
+    face_exact: float = 0.0  # constraints: entries overlapping deeper than this [m] at a round's start keep the exact separating-axis depth  # constraints: a round's self rows along the separating faces chosen at its start (.faces)
     stance_xy: bool = True  # constraints: a stance foot's node held at its phase's mean x, y (of the plain solution)
 
     def __post_init__(self) -> None:
@@ -316,7 +323,9 @@ class Physics:
         # self-penetration: the deepest points
         entries = state.get("self")  # the contacts found at this iteration's start, measured at this pose
         slots = al["slots"] if "slots" in al else c.max_contacts
-        ca = contact_points(self.model, pos, rot, entries, slots, SELF_POINTS) if c.w_self > 0 and entries is not None else None
+        ca = None
+        if c.w_self > 0 and entries is not None:  # the constraint method's rounds: along faces fixed at the round's start
+            ca = face_points(self.model, pos, rot, al["faces"], self.verts) if "faces" in al else contact_points(self.model, pos, rot, entries, slots, SELF_POINTS)
         if ca is not None:
             depth, pt, normal, na, nb = ca  # (B, T, K) ...
             if "self" in al:
@@ -330,9 +339,9 @@ class Physics:
             jws.append(self.sw["w_self"] * active)
         return nodes, points, dirs, res, jws, (col_nodes, col_dirs, col_res, col_w)
 
-    def cost(self, pos: torch.Tensor, rot: torch.Tensor, qd: torch.Tensor, state: dict) -> torch.Tensor:
-        """(B, T) the terms' cost at a pose (the neighbours and anchors of ``state``)."""
-        _, _, _, res, _, (_, _, col_res, _) = self._rows(pos, rot, state)
+    def cost(self, pos: torch.Tensor, rot: torch.Tensor, qd: torch.Tensor, state: dict, rows: tuple | None = None) -> torch.Tensor:
+        """(B, T) the terms' cost at a pose (the neighbours and anchors of ``state``; ``rows``: its rows, if made)."""
+        _, _, _, res, _, (_, _, col_res, _) = self._rows(pos, rot, state) if rows is None else rows
         out = sum((r**2).sum(-1) for r in res)
         for r in col_res:
             out = out + r**2
@@ -344,10 +353,12 @@ class Physics:
         """The stance no-slip term's Gauss-Newton parts (:func:`.stance.slip_terms`), or None."""
         return None if state.get("slip") is None else stance.slip_terms(self, pos, rot, state["slip"])
 
-    def linearise(self, pos: torch.Tensor, rot: torch.Tensor, qd: torch.Tensor, state: dict) -> tuple[torch.Tensor, torch.Tensor]:
-        """The terms' Gauss-Newton normal equations: ``J^T J`` (B, T, n, n) and ``J^T r`` (B, T, n)."""
+    def linearise(self, pos: torch.Tensor, rot: torch.Tensor, qd: torch.Tensor, state: dict, with_cost: bool = False):
+        """The terms' Gauss-Newton normal equations: ``J^T J`` (B, T, n, n) and ``J^T r`` (B, T, n); with
+        ``with_cost`` also :meth:`cost` at this pose (B, T), from the same rows."""
         B, T, J = pos.shape[:3]
-        nodes, points, dirs, res, jws, (col_nodes, col_dirs, col_res, col_w) = self._rows(pos, rot, state)
+        rows_all = self._rows(pos, rot, state)
+        nodes, points, dirs, res, jws, (col_nodes, col_dirs, col_res, col_w) = rows_all
         axes_w = (rot @ self.axes[:, None, :, :, None]).squeeze(-1)  # (B, T, J, 3)
         D = self.fold.shape[-1]
         n_cols = D + 6
@@ -390,7 +401,7 @@ class Physics:
             rr = torch.cat(resid, 2)
             h = h + jac.transpose(-1, -2) @ jac
             g = g + (jac.transpose(-1, -2) @ rr[..., None])[..., 0]
-        return h, g
+        return (h, g, self.cost(pos, rot, qd, state, rows_all)) if with_cost else (h, g)
 
     # ---- joint speed: couples neighbouring frames exactly (coupled_lm_ik only) ----------------------------
     def _step_limit(self, cols: torch.Tensor, like: torch.Tensor) -> torch.Tensor:

@@ -80,3 +80,81 @@ def test_the_constraints_lift_a_sunken_reference_out_of_the_floor():
     assert m["body_floor_frames"] == 0.0 and m["floor_depth_max"] < 0.01
     assert m["hover_frames"] == 0.0
     assert m["g_mpbpe"] < 0.06
+
+
+def test_fixed_faces_give_the_separating_axis_depth_and_bound_it_after_a_move():
+    """:mod:`mer_models.solver.faces` on TALOS (hulls) in random poses: at the pose where the faces are
+    fixed, each entry's depth, point and normal are :func:`contact_points`' separating-axis ones; after
+    the pose moves, the depth along the fixed face is never below the separating-axis depth (the least
+    overlap over every face), so holding it under a margin holds the metric's bound too."""
+    from mer_data.kinematics.collision import contact_points, pair_contacts
+    from mer_models.batch import batch_fk
+    from mer_models.solver.faces import face_points, fix_faces
+
+    T = 6
+    r, P, q = _problem("talos", T, 5)
+    model = collision_model(r)
+    base_pos = torch.zeros(1, T, 3, dtype=torch.float64)
+    base_rot = torch.eye(3, dtype=torch.float64).expand(1, T, 3, 3).clone()
+    pos, rot = batch_fk(P.graph, q, base_pos, base_rot)
+    found = pair_contacts(model, pos, rot, margin=0.05, top=8, which="sat")
+    assert found is not None
+    entries, (depth, point, normal, na, nb) = found
+    K = depth.shape[-1]
+    faces = fix_faces(model, pos, rot, entries, K)
+    fd, fp, fn, fa, fb = face_points(model, pos, rot, faces)
+    bi, ti, ki = entries[:3]
+    assert len(bi) >= 10 and bool((depth[bi, ti, ki] > 0).any())  # some pairs overlap, some do not
+    torch.testing.assert_close(fd[bi, ti, ki], depth[bi, ti, ki], atol=1e-9, rtol=0)
+    torch.testing.assert_close(fn[bi, ti, ki], normal[bi, ti, ki], atol=1e-9, rtol=0)
+    torch.testing.assert_close(fp[bi, ti, ki], point[bi, ti, ki], atol=1e-9, rtol=0)
+    assert torch.equal(fa[bi, ti, ki], na[bi, ti, ki]) and torch.equal(fb[bi, ti, ki], nb[bi, ti, ki])
+    gen = torch.Generator().manual_seed(1)
+    moved = q + 0.05 * torch.randn(q.shape, generator=gen, dtype=torch.float64)
+    pos2, rot2 = batch_fk(P.graph, moved, base_pos, base_rot)
+    sat = contact_points(model, pos2, rot2, entries, K, "sat")[0][bi, ti, ki]
+    along = face_points(model, pos2, rot2, faces)[0][bi, ti, ki]
+    assert bool((along >= sat - 1e-9).all()) and bool((along > sat + 1e-4).any())  # a bound, not the same
+
+
+def test_a_round_solves_runs_of_free_frames_with_a_held_frame_each_side():
+    """:func:`mer_models.solver.constrained._segments`: runs of frames free in any sample, one held
+    frame either side, close runs joined, the whole window once the runs cover most of it."""
+    from mer_models.solver.constrained import _segments
+
+    free = torch.zeros(2, 100, dtype=torch.bool)
+    assert _segments(free, 8) == []
+    free[0, 10:20] = True
+    free[1, 24:30] = True  # 4 frames after the first run: joined
+    free[0, 60:62] = True
+    free[1, 99] = True  # the last frame: no held frame after it
+    assert _segments(free, 8) == [(9, 31), (59, 63), (98, 100)]
+    assert _segments(free, 0) == [(9, 21), (23, 31), (59, 63), (98, 100)]
+    free[0, 5:90] = True
+    assert _segments(free, 8) == [(0, 100)]
+
+
+def test_deep_entries_keep_the_exact_separating_axis_depth():
+    """``fix_faces(exact_over=0)``: the entries overlapping at the fixing pose are measured by the
+    separating-axis depth itself at any later pose; the others along their fixed faces."""
+    from mer_data.kinematics.collision import contact_points, pair_contacts
+    from mer_models.batch import batch_fk
+    from mer_models.solver.faces import face_points, fix_faces
+
+    T = 6
+    r, P, q = _problem("talos", T, 5)
+    model = collision_model(r)
+    base_pos, base_rot = torch.zeros(1, T, 3, dtype=torch.float64), torch.eye(3, dtype=torch.float64).expand(1, T, 3, 3).clone()
+    pos, rot = batch_fk(P.graph, q, base_pos, base_rot)
+    entries, (depth, *_) = pair_contacts(model, pos, rot, margin=0.05, top=8, which="sat")
+    K = depth.shape[-1]
+    faces = fix_faces(model, pos, rot, entries, K, exact_over=0.0)
+    bi, ti, ki = entries[:3]
+    deep = depth[bi, ti, ki] > 0
+    assert bool(deep.any()) and not bool(deep.all())
+    moved = q + 0.05 * torch.randn(q.shape, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+    pos2, rot2 = batch_fk(P.graph, moved, base_pos, base_rot)
+    sat = contact_points(model, pos2, rot2, entries, K, "sat")[0][bi, ti, ki]
+    along = face_points(model, pos2, rot2, faces)[0][bi, ti, ki]
+    torch.testing.assert_close(along[deep], sat[deep], atol=1e-12, rtol=0)
+    assert bool((along[~deep] >= sat[~deep] - 1e-9).all())
