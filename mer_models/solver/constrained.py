@@ -182,7 +182,7 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
     known = torch.zeros(B, T, Kp, dtype=torch.bool, device=dev)
     search = torch.ones(B, T, dtype=torch.bool, device=dev)
     rounds, worst = 0, q.new_zeros(B)
-    faces = None
+    faces, cand = None, None  # cand: the (frame, pair) entries the later rounds look at, set by round 0
     for rnd in range(c.al_rounds + 1):
         low = lowest_points(model, pos, rot)[0]  # (B, T, S)
         foot_z = torch.stack([low[..., f].amin(-1) if len(f) else low.new_full((B, T), float("inf")) for f in feet], -1)
