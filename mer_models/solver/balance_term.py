@@ -214,10 +214,13 @@ class _Rows:
         out[:, sl] = (r**2).sum(-1).view(x.shape[0], -1)
         return out
 
-    def linearise(self, pos, rot, qd, state):
+    def linearise(self, pos, rot, qd, state, with_cost: bool = False):
+        """No per-frame blocks (the rows couple frames: :meth:`coupled_terms`); ``with_cost`` also
+        :meth:`cost` (B, T), as the physical terms' interface returns it."""
         B, T = pos.shape[:2]
         n = self.P.n
-        return pos.new_zeros(B, T, n, n), pos.new_zeros(B, T, n)
+        h, g = pos.new_zeros(B, T, n, n), pos.new_zeros(B, T, n)
+        return (h, g, self.cost(pos, rot, qd, state)) if with_cost else (h, g)
 
     def speed_terms(self, qd, cols):
         return None
