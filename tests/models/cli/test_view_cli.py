@@ -40,7 +40,7 @@ def test_mer_view_serves_the_page_on_loopback(tmp_path, mer_home):
         while "viewing" not in line and time.monotonic() - t0 < 120:
             line = proc.stdout.readline()
             assert line or proc.poll() is None, proc.stderr.read()
-        assert "viewing h1 (30 frames, its collision shapes" in line, line  # the built-in h1 ships no meshes
+        assert "viewing h1 (30 frames, its meshes" in line, line  # the built-in h1 ships its visual meshes (issue 52)
         url = line.split(" at ", 1)[1].split()[0]
         assert url.startswith("http://127.0.0.1:")
         with urllib.request.urlopen(url, timeout=30) as r:
