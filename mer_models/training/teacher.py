@@ -70,6 +70,10 @@ class SolverConfig:
         physics: the optimiser's physical terms (:mod:`mer_models.solver.physics`, as ``mer retarget``
             by default), on the samples whose target is a registered robot as it is (augmented
             variants have no collision geometry of their own and are solved without); None: off.
+        human_feet: samples whose reference is a human (BVH, SMPL family, joint positions) get the
+            physics ``mer retarget`` gives a human source: the constraint method, which keeps a stance
+            sole on the floor and unmoved while the human's foot is down
+            (:func:`mer_models.retarget.clip.human_physics`); False: the same physics as a robot's.
         batch: windows solved together.
     """
 
@@ -80,6 +84,7 @@ class SolverConfig:
     scaling_version: int = SCALING_VERSION
     optimizer_version: int = OPTIMIZER_VERSION
     physics: PhysicsConfig | None = PhysicsConfig()
+    human_feet: bool = True
     batch: int = 64
 
     def __post_init__(self) -> None:
@@ -259,7 +264,10 @@ def _solve_samples(samples: list, solver: SolverConfig, device: str) -> tuple[np
     """The optimiser on samples of one target robot: angles (N, T, J), base positions (N, T, 3),
     base rotation vectors (N, T, 3) and energies (N,). With ``solver.physics``, the samples are
     grouped by reference skeleton and by whether the target has its robot's collision geometry
-    (the physical terms need both)."""
+    (the physical terms need both), and by whether the reference is a human (``solver.human_feet``)."""
+    from mer_data.shards.humans import human_kind_of
+    from mer_models.retarget.clip import human_physics
+
     groups: dict[tuple, list[int]] = {}
     geoms: dict[str, object] = {}
     for i, smp in enumerate(samples):
@@ -269,12 +277,14 @@ def _solve_samples(samples: list, solver: SolverConfig, device: str) -> tuple[np
             if fp not in geoms:
                 geoms[fp] = geometry_of(smp.target_skeleton)
             geo = geoms[fp]
-        groups.setdefault((smp.reference_skeleton.fingerprint, id(geo) if geo is not None else None), []).append(i)
+        human = solver.human_feet and human_kind_of(str(smp.provenance.get("robot", ""))) is not None
+        groups.setdefault((smp.reference_skeleton.fingerprint, id(geo) if geo is not None else None, human), []).append(i)
     out: list = [None] * 4
-    for idx in groups.values():
+    for (_, _, human), idx in groups.items():
         group = [samples[i] for i in idx]
         geo = geoms.get(group[0].target_skeleton.fingerprint) if solver.physics is not None else None
-        kw = {"physics": solver.physics, "geometry": geo, "ref_skeleton": group[0].reference_skeleton, "fps": MODEL_FPS,
+        physics = human_physics(solver.physics) if human and solver.physics is not None else solver.physics
+        kw = {"physics": physics, "geometry": geo, "ref_skeleton": group[0].reference_skeleton, "fps": MODEL_FPS,
               "target_skeleton": group[0].target_skeleton} if geo is not None else {}  # fmt: skip
         motion = optimize_batch(solver.energy, collate(group, scaling=solver.scaling), gn_iters=solver.gn_iters,
                                 smooth=solver.smooth, fine=FINE_OF_VERSION[solver.optimizer_version], device=device, **kw)  # fmt: skip

@@ -213,3 +213,36 @@ def test_the_teacher_solves_with_the_schedule_it_records(solved, tmp_path):
 
     torch.testing.assert_close(batch["teacher"], features("jacobi"), atol=2e-4, rtol=0)
     assert (batch["teacher"] - features("coupled")).abs().max() > 1e-3  # the two schedules differ
+
+
+def test_a_human_reference_is_solved_with_the_human_feet(tmp_path):
+    """A shard of human motion (BVH) is solved as ``mer retarget`` solves a human source: the
+    constraint method that plants the stance feet (``human_physics``), not the robot's penalty terms."""
+    from bvh_factory import BANDAI_NAMES, human_definition, smooth_motion, write_bvh
+
+    from mer_data.robots.collision import collision_model
+    from mer_data.robots.registry import load_robot
+    from mer_data.shards import BuildConfig, build_shards
+    from mer_models.batch import batch_features, graph_from_batch
+    from mer_models.retarget.clip import human_physics
+    from mer_models.solver.physics import PhysicsConfig
+
+    d = tmp_path / "in" / "bvh"
+    d.mkdir(parents=True)
+    rng = np.random.default_rng(3)
+    (d / "walk.bvh").write_text(write_bvh(smooth_motion(human_definition(rng, 64, BANDAI_NAMES, angle=10.0), rng), six=True))
+    out = tmp_path / "out"
+    build_shards(BuildConfig(input=str(tmp_path / "in"), robots=("bvh",), targets=("g1",), split="all", augment=0), out)
+    solve_shards(out, solver=SolverConfig(gn_iters=2))
+    sample = ShardDataset(out)[0]
+    assert sample.reference_skeleton.name == "bvh" and sample.teacher is not None
+    batch = collate([sample])
+    kw = {"geometry": collision_model(load_robot("g1")), "ref_skeleton": sample.reference_skeleton, "fps": 30.0,
+          "target_skeleton": sample.target_skeleton}  # fmt: skip
+
+    def feats(physics):
+        m = optimize_batch(EnergyConfig(), batch, gn_iters=2, physics=physics, **kw)
+        return batch_features(graph_from_batch(batch, "tgt", "cpu"), m["q"], m["base_pos"], m["base_rot"])
+
+    torch.testing.assert_close(batch["teacher"], feats(human_physics()), atol=2e-4, rtol=0)
+    assert float((batch["teacher"] - feats(PhysicsConfig())).abs().max()) > 1e-3  # not the robot's penalty terms
