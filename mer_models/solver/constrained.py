@@ -171,7 +171,7 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
     low0 = lowest_points(model, pos, rot)[0]
     sole = torch.cat(feet) if any(len(f) for f in feet) else torch.arange(S, device=dev)
     need = (-low0[..., sole].amin(-1)).clamp_min(0)  # (B, T): the base lifted first where a foot is in the floor
-    if bool((need > 0).any()):  # (a start the floor's linearisation holds from; the rounds then take back what they can)
+    if c.al_lift and bool((need > 0).any()):  # (a start the floor's linearisation holds from; the rounds then take back what they can)
         base_pos = base_pos.clone()
         base_pos[..., 2] += need
         pos = pos.clone()

@@ -97,6 +97,7 @@ class PhysicsConfig:
     al_look: int = 2  # constraints: pairs looked for anew every this many rounds (and before the rounds stop; 0: only then)
     fixed_faces: bool = True
     face_exact: float = 0.0  # constraints: entries overlapping deeper than this [m] at a round's start keep the exact separating-axis depth  # constraints: a round's self rows along the separating faces chosen at its start (.faces)
+    al_lift: bool = True  # constraints: the base first raised by how far a foot is in the floor (False: the rounds start from the plain solution)
     stance_xy: bool = True  # constraints: a stance foot's node held at its phase's mean x, y (of the plain solution)
 
     def __post_init__(self) -> None:

@@ -65,3 +65,27 @@ def test_make_feasible_on_a_robot():
     np.testing.assert_array_equal(out.q[:, others], q[:, others])
     lo, hi = skel.lower[j], skel.upper[j]
     assert (out.q[:, j] >= lo - 1e-12).all() and (out.q[:, j] <= hi + 1e-12).all()
+
+
+def test_after_the_constraint_method_a_lift_raises_only_the_frames_in_the_floor():
+    """``feasible_motion``: H1 standing on the floor with frame 10 sunk 3 cm. After the penalty method
+    the lift is eased over the neighbours (frames 7-13 raised); after the constraint method only
+    frame 10 is raised, so the neighbours' stance feet stay on the floor (no hovering made)."""
+    from mer_models.retarget.feasible import feasible_motion
+    from mer_models.solver.physics import PhysicsConfig
+
+    robot = load_robot("h1")
+    skel, geom = robot.skeleton, collision_model(robot)
+    F = 21
+    q = np.tile(skel.nominal, (F, 1)).astype(np.float64)
+    rot = np.tile(np.eye(3), (F, 1, 1))
+    base = np.zeros((F, 3))
+    low = motion_artifacts(q[:1], base[:1], rot[:1], 30.0, skel, geom)["body_floor_depth_max"]
+    base[:, 2] = low + 1e-4  # every frame just on the floor
+    base[10, 2] -= 0.03
+    motion = TargetMotion(skel, 30.0, q, base, rot)
+    eased = feasible_motion(motion, geom, PhysicsConfig()).base_pos[:, 2] - base[:, 2]
+    own = feasible_motion(motion, geom, PhysicsConfig(method="constraints")).base_pos[:, 2] - base[:, 2]
+    assert abs(own[10] - 0.03) < 1e-3 and abs(eased[10] - 0.03) < 1e-3
+    assert np.abs(np.delete(own, 10)).max() == 0.0
+    assert eased[7:14].min() > 0.003  # the envelope: the neighbours raised too

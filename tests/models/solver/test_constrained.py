@@ -158,3 +158,20 @@ def test_deep_entries_keep_the_exact_separating_axis_depth():
     along = face_points(model, pos2, rot2, faces)[0][bi, ti, ki]
     torch.testing.assert_close(along[deep], sat[deep], atol=1e-12, rtol=0)
     assert bool((along[~deep] >= sat[~deep] - 1e-9).all())
+
+
+def test_without_the_lift_the_rounds_take_a_shallow_sink_out_by_less_than_a_rigid_raise():
+    """``al_lift=False``: the rounds start from the plain solution of H1 standing 2 cm into the floor
+    and still end with no body in it and the soles down; the least change bends rather than raising
+    the whole robot, so g-mpbpe ends under the 2 cm a rigid raise (the lift, ``al_lift=True``) costs."""
+    from mer_models.retarget.clip import retarget_features, sequence_metrics
+
+    r, feats = _standing_features("h1", 30, 0.02)
+    s, geom = r.skeleton, collision_model(r)
+    out = {}
+    for lift in (True, False):
+        res = retarget_features(feats, s, s, method="optimize", fps=30.0, physics=PhysicsConfig(method="constraints", al_lift=lift))
+        out[lift] = m = sequence_metrics(feats, s, res.motion, prepared=res.prepared, geometry=geom)
+        assert m["body_floor_frames"] == 0.0 and m["floor_depth_max"] < 0.01 and m["hover_frames"] == 0.0
+    assert abs(out[True]["g_mpbpe"] - 0.02) < 0.002  # the lift: every body 2 cm above its goal
+    assert out[False]["g_mpbpe"] < out[True]["g_mpbpe"] - 0.001
