@@ -17,7 +17,7 @@ from mer_data.kinematics.fk import apply_mimic, forward_kinematics
 from mer_data.kinematics.rotations import matrix_to_axis_angle
 from mer_data.motion.features import FEATURE_DIM, finite_difference
 
-__all__ = ["BatchGraph", "graph_from_batch", "batch_fk", "batch_features", "yaw_of", "rot_z", "descendants", "nearest_mapped_ancestor"]
+__all__ = ["BatchGraph", "graph_from_batch", "batch_fk", "batch_features", "yaw_of", "rot_z", "descendants", "nearest_mapped_ancestor", "ancestors"]
 
 
 @dataclass(frozen=True)
@@ -139,3 +139,17 @@ def nearest_mapped_ancestor(parents: torch.Tensor, has: torch.Tensor) -> tuple[t
         out[:, k] = self_or[idx, p]
         self_or[:, k] = torch.where(has[:, k], torch.full_like(p, k), out[:, k])
     return out, self_or
+
+
+def ancestors(parents: torch.Tensor) -> torch.Tensor:
+    """(B, J) parents (``-1`` at node 0) → (B, J, J) bool, ``[b, k, j]`` True iff j is a strict ancestor of k."""
+    B, J = parents.shape
+    anc = torch.zeros(B, J, J, dtype=torch.bool, device=parents.device)
+    b = torch.arange(B, device=parents.device)[:, None].expand(B, J)
+    k = torch.arange(J, device=parents.device)[None].expand(B, J)
+    cur = parents.clone()
+    while bool((cur >= 0).any()):
+        v = cur >= 0
+        anc[b[v], k[v], cur[v]] = True
+        cur = torch.where(v, torch.gather(parents, 1, cur.clamp_min(0)), torch.full_like(cur, -1))
+    return anc

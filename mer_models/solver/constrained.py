@@ -113,36 +113,52 @@ def _segments(free: torch.Tensor, gap: int) -> list[tuple[int, int]]:
     return [(0, T)] if sum(b - a for a, b in runs) > 0.75 * T else runs
 
 
-def _window(a: int, b: int, **tensors: torch.Tensor | None) -> dict:
-    """Frames a..b-1 (dimension 1) of each tensor (None stays None)."""
-    return {k: None if v is None else v[:, a:b] for k, v in tensors.items()}
+def _window(idx: torch.Tensor | None, **tensors: torch.Tensor | None) -> dict:
+    """Frames ``idx`` (dimension 1; None: all) of each tensor (None stays None)."""
+    return {k: v if v is None or idx is None else v[:, idx] for k, v in tensors.items()}
 
 
-def _window_terms(terms: Any, a: int, b: int) -> Any:
-    """The physical terms (:class:`~.physics.PhysicsInputs` with a round's state ``al``) of frames a..b-1."""
-    T = terms.al["floor"].shape[1]
-    if (a, b) == (0, T):
+def _frames(segs: list[tuple[int, int]], T: int, dev: torch.device) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+    """The frames of the ranges ``segs`` (:func:`_segments`) one after another, and each one's range
+    (None, None: the whole window). Each range starts and ends at a held frame (or the window's end),
+    so ranges side by side are coupled only between held frames, by terms that stay constant: one
+    solve of them all, each range its own damping and step test (``coupled_lm_ik(groups=...)``),
+    takes the steps a solve of each would, without a call's fixed cost per range."""
+    if segs == [(0, T)]:
+        return None, None
+    idx = torch.cat([torch.arange(a, b, device=dev) for a, b in segs])
+    groups = torch.cat([torch.full((b - a,), i, dtype=torch.long, device=dev) for i, (a, b) in enumerate(segs)])
+    return idx, groups
+
+
+def _window_terms(terms: Any, idx: torch.Tensor | None) -> Any:
+    """The physical terms (:class:`~.physics.PhysicsInputs` with a round's state ``al``) of frames ``idx`` (None: all)."""
+    if idx is None:
         return terms
+    T = terms.al["floor"].shape[1]
+    new = torch.full((T,), -1, dtype=torch.long, device=idx.device)
+    new[idx] = torch.arange(len(idx), device=idx.device)  # each frame's place in the solve (-1: not in it)
     al = dict(terms.al)
     for k in ("floor", "self", "stance_z"):
-        al[k] = al[k][:, a:b]
+        al[k] = al[k][:, idx]
     if al["entries"] is not None:
-        keep = (al["entries"][1] >= a) & (al["entries"][1] < b)
+        keep = new[al["entries"][1]] >= 0
         bi, ti, slot, sa, sb = (x[keep] for x in al["entries"])
-        al["entries"] = (bi, ti - a, slot, sa, sb) if len(bi) else None
+        al["entries"] = (bi, new[ti], slot, sa, sb) if len(bi) else None
         if "faces" in al:
             f = al["faces"]
             al["faces"] = {**f, "entries": al["entries"], **{k: f[k][keep] for k in ("reach", "other", "n", "d", "pair")}}
             if f["exact"] is not None:
-                kx = (f["exact"][1] >= a) & (f["exact"][1] < b)
+                kx = new[f["exact"][1]] >= 0
                 ex = tuple(x[kx] for x in f["exact"])
-                al["faces"]["exact"] = (ex[0], ex[1] - a, *ex[2:]) if bool(kx.any()) else None
+                al["faces"]["exact"] = (ex[0], new[ex[1]], *ex[2:]) if bool(kx.any()) else None
             if al["entries"] is None:
                 del al["faces"]
-    if al.get("slip") is not None:
+    if al.get("slip") is not None:  # a pair of frames side by side only where they are neighbours
         sl = al["slip"]
-        al["slip"] = {**sl, "shape": sl["shape"][:, a:b], "vert": sl["vert"][:, a:b], "mask": sl["mask"][:, a : b - 1]}
-    contacts = None if terms.contacts is None else terms.contacts[:, a:b]
+        nb = (idx[1:] == idx[:-1] + 1)[None, :, None]
+        al["slip"] = {**sl, "shape": sl["shape"][:, idx], "vert": sl["vert"][:, idx], "mask": sl["mask"][:, idx[:-1].clamp_max(T - 2)] & nb}
+    contacts = None if terms.contacts is None else terms.contacts[:, idx]
     return dataclasses.replace(terms, contacts=contacts, al=al)
 
 
@@ -232,16 +248,18 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
             faces = al["faces"] = fix_faces(model, pos, rot, entries, slots, SELF_POINTS, exact_over=c.face_exact)
             faces["pair"] = known.nonzero(as_tuple=True)[2]
         terms = dataclasses.replace(physics, cfg=terms_cfg, al=al, pairs=None, pair_mask=None)
-        for a, b in _segments(free, c.al_gap):  # each run of free frames on its own, with a held frame at each end
-            sub = _window(a, b, goal=goal, q=q, base_pos=base_pos, base_rot=base_rot, plain=plain, hold=~free, goal_rot=goal_rot)
+        segs = _segments(free, c.al_gap)
+        if segs:  # every run of free frames, with a held frame at each end, in one solve
+            idx, groups = _frames(segs, T, dev)
+            sub = _window(idx, goal=goal, q=q, base_pos=base_pos, base_rot=base_rot, plain=plain, hold=~free, goal_rot=goal_rot)
             qs, ps, rs = coupled_lm_ik(cfg, graph, eta, sub["goal"], sub["q"], sub["base_pos"], sub["base_rot"], iters=c.al_iters, smooth=smooth, tol=tol,
-                                       change_of=sub["plain"], change_smooth=smooth * c.al_smooth, physics=_window_terms(terms, a, b),
-                                       hold=sub["hold"], goal_rot=sub["goal_rot"], rot_mask=rot_mask)  # fmt: skip
-            if (a, b) == (0, T):
+                                       change_of=sub["plain"], change_smooth=smooth * c.al_smooth, physics=_window_terms(terms, idx),
+                                       hold=sub["hold"], goal_rot=sub["goal_rot"], rot_mask=rot_mask, groups=groups)  # fmt: skip
+            if idx is None:
                 q, base_pos, base_rot = qs, ps, rs
             else:
                 q, base_pos, base_rot = q.clone(), base_pos.clone(), base_rot.clone()
-                q[:, a:b], base_pos[:, a:b], base_rot[:, a:b] = qs, ps, rs
+                q[:, idx], base_pos[:, idx], base_rot[:, idx] = qs, ps, rs
         pos, rot = batch_fk(graph, q, base_pos, base_rot)
         search, rounds = search | free, rnd + 1
     if stats is not None:

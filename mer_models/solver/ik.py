@@ -44,7 +44,7 @@ from typing import Any
 import torch
 
 from mer_data.kinematics.rotations import axis_angle_to_matrix
-from mer_models.batch import BatchGraph, batch_fk
+from mer_models.batch import BatchGraph, ancestors, batch_fk  # noqa: F401  (ancestors: imported from here too)
 from mer_models.config import EnergyConfig
 
 from .energy import keypoint_goals, orientation_pairs
@@ -57,20 +57,6 @@ __all__ = ["ancestors", "gauss_newton_ik", "coupled_lm_ik", "DEFAULT_SMOOTH", "D
 DEFAULT_SMOOTH = 0.05
 #: Relative cost change under which a frame counts as converged.
 DEFAULT_TOL = 1e-4
-
-
-def ancestors(parents: torch.Tensor) -> torch.Tensor:
-    """(B, J) parents (``-1`` at node 0) → (B, J, J) bool, ``[b, k, j]`` True iff j is a strict ancestor of k."""
-    B, J = parents.shape
-    anc = torch.zeros(B, J, J, dtype=torch.bool, device=parents.device)
-    b = torch.arange(B, device=parents.device)[:, None].expand(B, J)
-    k = torch.arange(J, device=parents.device)[None].expand(B, J)
-    cur = parents.clone()
-    while bool((cur >= 0).any()):
-        v = cur >= 0
-        anc[b[v], k[v], cur[v]] = True
-        cur = torch.where(v, torch.gather(parents, 1, cur.clamp_min(0)), torch.full_like(cur, -1))
-    return anc
 
 
 def _skew(v: torch.Tensor) -> torch.Tensor:
@@ -367,6 +353,7 @@ def coupled_lm_ik(
     hold: torch.Tensor | None = None,
     change_of: torch.Tensor | None = None,
     change_smooth: float = 0.0,
+    groups: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Levenberg-Marquardt on a whole window at once: the temporal prior couples the frames exactly.
 
@@ -384,6 +371,8 @@ def coupled_lm_ik(
     they are (their neighbours' prior still sees them: a repair of a few frames eases in and out).
     ``change_of`` (B, T, J) angles and ``change_smooth``: a second temporal prior, of that weight
     (relative to ``w_kp``), on the change from those angles (a smooth change of a solution).
+    ``groups`` (T,) long: frames of a group (0..G-1) share a damping and keep or refuse a step by
+    their own cost (groups coupled only through held frames then solve as separate windows would).
     """
     B, T, J = q.shape
     P = _Problem(cfg, graph, eta, goal, q, goal_rot, rot_mask)
@@ -415,8 +404,17 @@ def coupled_lm_ik(
 
     pos, rot, kp, ocols, fit = P.fit(qd, base_pos, base_rot)
     cost = frame_cost(fit, qd)
-    mu = torch.full((B,), damping, dtype=P.dtype, device=P.dev)
-    active = torch.ones(B, dtype=torch.bool, device=P.dev)
+    G, cut = 1, P.zeros(B, T)  # cut: the costs of neighbouring frames of two groups (held: constant), left out of each group's
+    for t in [] if groups is None else (groups[1:] != groups[:-1]).nonzero().flatten().tolist():
+        pair = qd[:, t : t + 2]
+        cut[:, t : t + 2] += _velocity_prior(pair, w[:, None]) + (0 if ref is None else _velocity_prior(pair - ref[:, t : t + 2], wc[:, None]))
+        cut[:, t : t + 2] += 0 if phys is None else phys.speed_cost(pair, P.cols)
+    if groups is not None:
+        G = int(groups.max()) + 1
+    per_frame = (lambda x: x) if groups is None else (lambda x: x[:, groups])  # (B, G) -> (B, T) or (B, 1)
+    per_group = (lambda x: x.sum(-1, keepdim=True)) if groups is None else (lambda x: (x - cut).new_zeros(B, G).index_add_(1, groups, x - cut))
+    mu = torch.full((B, G), damping, dtype=P.dtype, device=P.dev)
+    active = torch.ones(B, G, dtype=torch.bool, device=P.dev)
     done = 0
     for it in range(iters):
         report(it, iters)
@@ -453,19 +451,20 @@ def coupled_lm_ik(
         c = c * free[:, 1:] * free[:, :-1]  # (B, T-1, n): a held joint is coupled to nothing
         if dense is not None:
             c = torch.diag_embed(c) + dense * free[:, 1:, :, None] * free[:, :-1, None, :]
-        step, solved = block_tridiagonal_solve(P.damp(h, mu[:, None]), c, -g)
+        step, solved = block_tridiagonal_solve(P.damp(h, per_frame(mu)), c, -g)
         qd_c, bp_c, br_c = P.candidate(qd, base_pos, base_rot, step)
         pos_c, rot_c, kp_c, ocols_c, fit_c = P.fit(qd_c, bp_c, br_c)
         cost_c = frame_cost(fit_c, qd_c)
         if phys is not None:
             cost_c = cost_c + phys.cost(pos_c, rot_c, qd_c, state) + phys.speed_cost(qd_c, P.cols)
-        total, total_c = cost.sum(-1), cost_c.sum(-1)
-        ok = (total_c < total) & active & solved
-        o1, o2, o3 = ok[:, None, None], ok[:, None, None, None], ok[:, None, None, None, None]
+        total, total_c = per_group(cost), per_group(cost_c)
+        ok = (total_c < total) & active & solved[:, None]
+        o1 = per_frame(ok)[..., None]
+        o2, o3 = o1[..., None], o1[..., None, None]
         qd, base_pos, base_rot = torch.where(o1, qd_c, qd), torch.where(o1, bp_c, base_pos), torch.where(o2, br_c, base_rot)
         pos, kp, rot = torch.where(o2, pos_c, pos), torch.where(o2, kp_c, kp), torch.where(o3, rot_c, rot)
-        cost = torch.where(ok[:, None], cost_c, cost)
-        fit = torch.where(ok[:, None], fit_c, fit)
+        cost = torch.where(o1[..., 0], cost_c, cost)
+        fit = torch.where(o1[..., 0], fit_c, fit)
         if P.M:
             ocols = torch.where(o2, ocols_c, ocols)
         mu = torch.where(active, torch.where(ok, mu / 3, mu * 4).clamp(1e-7, 1e6), mu)

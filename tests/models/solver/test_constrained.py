@@ -175,3 +175,41 @@ def test_without_the_lift_the_rounds_take_a_shallow_sink_out_by_less_than_a_rigi
         assert m["body_floor_frames"] == 0.0 and m["floor_depth_max"] < 0.01 and m["hover_frames"] == 0.0
     assert abs(out[True]["g_mpbpe"] - 0.02) < 0.002  # the lift: every body 2 cm above its goal
     assert out[False]["g_mpbpe"] < out[True]["g_mpbpe"] - 0.001
+
+
+def test_grouped_ranges_solve_as_each_range_alone():
+    """``coupled_lm_ik(groups=...)``: ranges of frames put side by side, each bounded by held frames, with
+    their own damping and step test, end where a solve of each range alone ends, though one range starts
+    far from its goals and the other near (one shared step test does not: the check can fail)."""
+    import dataclasses
+
+    from test_physics import TrainingSample, collate, graph_from_batch, joint_map
+
+    from mer_models.batch import batch_fk
+    from mer_models.config import EnergyConfig
+    from mer_models.solver.ik import coupled_lm_ik
+
+    r, _, q = _problem("h1", 16, 4)
+    s = r.skeleton
+    eta = torch.from_numpy(joint_map(s, s))[None].double()
+    g = graph_from_batch(collate([TrainingSample(np.zeros((3, s.num_nodes, 9), np.float32), s, s, joint_map(s, s))]), "tgt", "cpu")
+    g = dataclasses.replace(g, **{f.name: getattr(g, f.name).double() for f in dataclasses.fields(g) if getattr(g, f.name).is_floating_point()})
+    base_pos = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(1, 16, 3).clone()
+    base_rot = torch.eye(3, dtype=torch.float64).expand(1, 16, 3, 3).clone()
+    goal = batch_fk(g, q, base_pos, base_rot)[0]
+    start = q.clone()
+    start[:, :8] += 0.02 * torch.cos(torch.arange(s.num_nodes, dtype=torch.float64))
+    start[:, 8:] += 1.2 * torch.sin(torch.arange(s.num_nodes, dtype=torch.float64))  # the second range far from its goals
+    start = torch.minimum(torch.maximum(start, torch.from_numpy(s.lower.copy())), torch.from_numpy(s.upper.copy()))
+    hold = torch.zeros(1, 16, dtype=torch.bool)
+    hold[:, [0, 7, 8, 15]] = True  # ranges 0-7 and 8-15, a held frame at each end
+    kw = dict(iters=6, smooth=0.05, tol=1e-4, change_of=q, change_smooth=0.5)
+    cfg = EnergyConfig()
+    alone = [coupled_lm_ik(cfg, g, eta, goal[:, a:b], start[:, a:b], base_pos[:, a:b], base_rot[:, a:b], hold=hold[:, a:b], **{**kw, "change_of": q[:, a:b]})
+             for a, b in ((0, 8), (8, 16))]  # fmt: skip
+    groups = torch.tensor([0] * 8 + [1] * 8)
+    together = coupled_lm_ik(cfg, g, eta, goal, start, base_pos, base_rot, hold=hold, groups=groups, **kw)
+    for i, x in enumerate(together):
+        torch.testing.assert_close(x, torch.cat([alone[0][i], alone[1][i]], 1), atol=1e-9, rtol=1e-9)
+    shared = coupled_lm_ik(cfg, g, eta, goal, start, base_pos, base_rot, hold=hold, **kw)[0]
+    assert not torch.allclose(shared, together[0], atol=1e-9, rtol=1e-9)
