@@ -114,9 +114,10 @@ def pair_depths(model: Any, pos: torch.Tensor, rot: torch.Tensor, pairs: Any = N
             f, k = near[s : s + chunk, 0], near[s : s + chunk, 1]
             sa, sb = a[k], b[k]
             # a face of either shape with all of the other's vertices outside separates them: cheap, and most near pairs are
-            gap_ab = _by_size(_inside, verts, planes, node, p2, r2, f, sa, sb, gap=True)
-            gap_ba = _by_size(_inside, verts, planes, node, p2, r2, f, sb, sa, gap=True)
-            sep_gap = torch.maximum(gap_ab, gap_ba)
+            sep_gap = _by_size(_inside, verts, planes, node, p2, r2, f, sa, sb, gap=True)
+            other = (sep_gap <= max(margin, 0.0)).nonzero().flatten()  # the rest are apart by more than margin already
+            if len(other):
+                sep_gap = sep_gap.index_put((other,), torch.maximum(sep_gap[other], _by_size(_inside, verts, planes, node, p2, r2, f[other], sb[other], sa[other], gap=True)))
             v = -sep_gap
             close = sep_gap <= 0
             if not sat and bool(close.any()):
@@ -174,7 +175,7 @@ def _signed(pts, planes, node, pos, rot, f, sa, sb):
     world = torch.einsum("eij,epj->epi", ra, pts[sa]) + ta[:, None]
     local = torch.einsum("eji,epj->epi", rb, world - tb[:, None])  # into sb's node frame
     pl = planes[sb]  # (E, F, 4)
-    return torch.einsum("epj,efj->epf", local, pl[..., :3]) + pl[:, None, :, 3], world, rb
+    return torch.einsum("epj,efj->epf", local, pl[..., :3]).add_(pl[:, None, :, 3]), world, rb  # in place: (E, P, F) made once
 
 
 def _inside(pts, planes, node, pos, rot, f, sa, sb, gap: bool = False) -> torch.Tensor:
