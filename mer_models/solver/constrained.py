@@ -147,7 +147,7 @@ def _window_terms(terms: Any, idx: torch.Tensor | None) -> Any:
         al["entries"] = (bi, new[ti], slot, sa, sb) if len(bi) else None
         if "faces" in al:
             f = al["faces"]
-            al["faces"] = {**f, "entries": al["entries"], **{k: f[k][keep] for k in ("reach", "other", "n", "d", "pair")}}
+            al["faces"] = {**f, "entries": al["entries"], "memo": [], **{k: f[k][keep] for k in ("reach", "other", "n", "d", "pair")}}
             if f["exact"] is not None:
                 kx = new[f["exact"][1]] >= 0
                 ex = tuple(x[kx] for x in f["exact"])

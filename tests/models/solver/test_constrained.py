@@ -213,3 +213,31 @@ def test_grouped_ranges_solve_as_each_range_alone():
         torch.testing.assert_close(x, torch.cat([alone[0][i], alone[1][i]], 1), atol=1e-9, rtol=1e-9)
     shared = coupled_lm_ik(cfg, g, eta, goal, start, base_pos, base_rot, hold=hold, **kw)[0]
     assert not torch.allclose(shared, together[0], atol=1e-9, rtol=1e-9)
+
+
+def test_face_points_reuse_the_last_two_poses_and_only_those():
+    """:func:`mer_models.solver.faces.face_points` keeps its last two poses' results (an LM measures each
+    accepted candidate again as its next iterate): the same pose (another tensor of the same values)
+    gives the same tensors back, exact entries included; a new pose, a fresh result equal to a copy's."""
+    from mer_data.kinematics.collision import pair_contacts
+    from mer_models.batch import batch_fk
+    from mer_models.solver.faces import face_points, fix_faces
+
+    T = 4
+    r, P, q = _problem("talos", T, 5)
+    model = collision_model(r)
+    base_pos = torch.zeros(1, T, 3, dtype=torch.float64)
+    base_rot = torch.eye(3, dtype=torch.float64).expand(1, T, 3, 3).clone()
+    pos, rot = batch_fk(P.graph, q, base_pos, base_rot)
+    entries, (depth, *_) = pair_contacts(model, pos, rot, margin=0.05, top=8, which="sat")
+    faces = fix_faces(model, pos, rot, entries, depth.shape[-1], exact_over=0.0)
+    assert faces["exact"] is not None  # some entries measured exactly at every pose
+    first = face_points(model, pos, rot, faces)
+    moved = batch_fk(P.graph, q + 0.05, base_pos, base_rot)
+    second = face_points(model, *moved, faces)
+    assert all(a is b for a, b in zip(face_points(model, pos.clone(), rot.clone(), faces), first))
+    assert all(a is b for a, b in zip(face_points(model, *moved, faces), second))
+    fresh = face_points(model, *moved, {**faces, "memo": []})
+    assert all(torch.equal(a, b) for a, b in zip(fresh, second)) and not torch.equal(first[0], second[0])
+    third = face_points(model, *batch_fk(P.graph, q - 0.05, base_pos, base_rot), faces)  # the first pose is now forgotten
+    assert not any(a is b for a, b in zip(face_points(model, pos, rot, faces), first)) and third is not None
