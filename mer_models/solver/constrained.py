@@ -20,7 +20,8 @@ constraint is met to :data:`TOLERANCE_M` (sliding, a penalty, does not keep the 
 rounds add a temporal prior on the *change* from the plain solution (``al_smooth`` times the
 solve's), so the change is smooth without pulling what the plain solve fitted, and hold frames
 farther than ``al_reach`` from every active constraint; from round ``al_focus`` on, from every
-constraint not yet met, and each run of the frames that move is solved on its own (:func:`_segments`).
+constraint not yet met, and each run of the frames that move is solved as on its own (:func:`_segments`;
+the runs side by side in one call, each its own damping and step test: :func:`_frames`).
 Within a round a self row is the overlap along the separating face chosen at its start
 (:mod:`.faces`), and pairs are looked for again (among those within ``al_search`` at the first
 round) only before the rounds would stop. The base
