@@ -62,11 +62,14 @@ def test_normal_equations_are_the_residual_jacobians(mimic):
             [((kp - P.goals) * P.w_kp[..., None].sqrt()).flatten(2), ((ocols - P.gcols) * P.w_o[..., None].sqrt()).flatten(2)], 2
         )
 
-    step0 = torch.zeros(B, T, P.n, dtype=torch.float64)
+    step0 = torch.zeros(B, T, P.n, dtype=torch.float64, requires_grad=True)
     r = residuals(step0)
-    jac = torch.autograd.functional.jacobian(residuals, step0)  # (B, T, rows, B, T, n): one backward pass per row
+    # frames and samples are independent, so one backward pass per row index gives that row of every
+    # (sample, frame) block at once: (B, T, rows, n); a coupling between frames would show as a mismatch
+    jac = torch.stack([torch.autograd.grad(r[..., k].sum(), step0, retain_graph=True)[0] for k in range(r.shape[-1])], 2)
+    r = r.detach()
     for bi in range(B):
         for t in range(T):
-            jj = jac[bi, t, :, bi, t]  # (rows, n): frames and samples are independent
+            jj = jac[bi, t]  # (rows, n)
             torch.testing.assert_close(h[bi, t], jj.T @ jj, rtol=1e-9, atol=1e-10)
             torch.testing.assert_close(grad[bi, t], jj.T @ r[bi, t], rtol=1e-9, atol=1e-10)
