@@ -43,6 +43,7 @@ from mer_data.kinematics.dynamics import BINOMIAL, GRAVITY
 from mer_data.kinematics.support import support_polygons
 from mer_models.batch import batch_fk
 
+from .balance_path import solve_path
 from .ik import ancestors, coupled_lm_ik
 
 __all__ = ["BalanceConfig", "BalanceInputs", "balance_rows", "MAX_CORNERS"]
@@ -73,6 +74,9 @@ class BalanceConfig:
     rounds: int = 2
     iters: int = 6
     change_smooth: float = 1.0
+    method: str = "path"
+    margin: float = 0.0
+    path_smooth: float = 1.0
 
     def __post_init__(self) -> None:
         for k in ("weight", "hold_weight", "flight_weight", "tol", "change_smooth"):
@@ -80,6 +84,8 @@ class BalanceConfig:
                 raise ValueError(f"BalanceConfig.{k} must be >= 0, got {getattr(self, k)}")
         if self.down is not None and not self.down > 0:
             raise ValueError(f"BalanceConfig.down must be > 0 or None, got {self.down}")
+        if self.method not in ("path", "rows"):
+            raise ValueError(f"BalanceConfig.method must be 'path' or 'rows', got {self.method!r}")
         if self.rounds < 1 or self.iters < 1:
             raise ValueError(f"BalanceConfig.rounds and iters must be >= 1, got {self.rounds}, {self.iters}")
 
@@ -277,6 +283,7 @@ class BalanceInputs:
     contact: torch.Tensor | None = None
     flight: torch.Tensor | None = None
     node: torch.Tensor | None = None
+    model: Any = None
 
     @classmethod
     def of_robot(cls, robot: Any, cfg: BalanceConfig, fps: float, geometry: Any = None) -> "BalanceInputs":
@@ -285,7 +292,7 @@ class BalanceInputs:
 
         mm = mass_model(robot)
         return cls(cfg, np.asarray(mm.mass, np.float64), np.asarray(mm.com, np.float64),
-                   collision_model(robot) if geometry is None else geometry, fps)  # fmt: skip
+                   collision_model(robot) if geometry is None else geometry, fps, model=mm)  # fmt: skip
 
     def build(self, P: Any, w_kp: float) -> _Rows:
         return _Rows(self, P, w_kp)
@@ -325,6 +332,9 @@ class BalanceInputs:
               rot_mask: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:  # fmt: skip
         """The term's rounds after a solve (module docstring): ``q`` (B, T, J), ``base_pos`` (B, T, 3),
         ``base_rot`` (B, T, 3, 3) in, the balanced motion out (arguments as :func:`~.ik.coupled_lm_ik`)."""
+        if self.cfg.method == "path":
+            return solve_path(self, cfg, graph, eta, goal, q, base_pos, base_rot, smooth=smooth, tol=tol, goal_rot=goal_rot,
+                              rot_mask=rot_mask)  # fmt: skip
         plain = q
         for _ in range(self.cfg.rounds):
             self.read_support(*batch_fk(graph, q, base_pos, base_rot))
