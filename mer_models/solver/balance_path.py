@@ -24,10 +24,14 @@ solved motion again and corrects what is left.
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import torch
 
 from mer_data.kinematics.dynamics import BINOMIAL, GRAVITY
+
+log = logging.getLogger(__name__)
 
 __all__ = ["accel_operator", "polygon_rows", "path_correction", "leg_weights"]
 
@@ -75,7 +79,7 @@ def polygon_rows(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def path_correction(zmp: np.ndarray, com_z: np.ndarray, fz: np.ndarray, polys: list, flight: np.ndarray, acc_xy: np.ndarray,
                     fps: float, *, margin: float = 0.0, smooth: float = 1.0, flight_weight: float = 1.0,
-                    penalty: float = 1e4, iters: int = 30) -> np.ndarray:  # fmt: skip
+                    penalty: float = 1e4, iters: int = 30, prior: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
     """The least correction ``dc`` (T, 2) [m] of the centre of mass's horizontal path (module docstring).
 
     Args:
@@ -85,7 +89,8 @@ def path_correction(zmp: np.ndarray, com_z: np.ndarray, fz: np.ndarray, polys: l
             flight: (T,) bool; acc_xy: (T, 2) the filtered horizontal acceleration now [m/s^2].
         margin: how far inside the polygon the ZMP is put [m]; smooth: the weight of the filtered
             acceleration's change, in ZMP units (``(c_z / g) A dc``); flight_weight: of the flight
-            frames' horizontal acceleration, in the same units; penalty: of a polygon row's excess.
+            frames' horizontal acceleration, in the same units; penalty: of a polygon row's excess;
+            prior: (T, 2) the correction earlier rounds made [m]: the least ``prior + dc`` is sought.
     """
     from scipy.sparse import bmat, csr_matrix, diags, identity
     from scipy.sparse.linalg import spsolve
@@ -105,6 +110,8 @@ def path_correction(zmp: np.ndarray, com_z: np.ndarray, fz: np.ndarray, polys: l
         Q = Q + flight_weight * bmat([[sf.T @ sf, None], [None, sf.T @ sf]])
         k = np.mean(com_z) / GRAVITY
         rhs -= flight_weight * np.concatenate([sf.T @ (k * acc_xy[fl, 0]), sf.T @ (k * acc_xy[fl, 1])])
+    if prior is not None:
+        rhs -= Q @ np.concatenate([prior[:, 0], prior[:, 1]])
     # the polygon rows: n . (p + L dc) + d + margin <= 0, one row per edge of every constrained frame
     ri, nx, ny, b = [], [], [], []
     for t, poly in enumerate(polys):
@@ -116,17 +123,17 @@ def path_correction(zmp: np.ndarray, com_z: np.ndarray, fz: np.ndarray, polys: l
         ny.append(n[:, 1])
         b.append(n @ zmp[t] + d + margin)
     if not ri:
-        return np.zeros((T, 2))
+        ri, nx, ny, b = [0], [np.zeros(1)], [np.zeros(1)], [np.full(1, -1.0)]  # no polygon: no row ever active
     ri_a = np.asarray(ri)
     nx_a, ny_a, b_a = np.concatenate(nx), np.concatenate(ny), np.concatenate(b)
     R = len(ri_a)
     Lr = L[ri_a]  # (R, T)
     G = csr_matrix(bmat([[diags(nx_a) @ Lr, diags(ny_a) @ Lr]]))  # (R, 2T)
-    x = np.zeros(2 * T)
+    x = spsolve(Q.tocsc(), rhs)
     active = np.zeros(R, bool)
     for _ in range(iters):
         viol = G @ x + b_a > 0
-        if _ and np.array_equal(viol, active):
+        if np.array_equal(viol, active):
             break
         active = viol
         Ga = G[active]
@@ -191,10 +198,12 @@ def _frames(inputs, pos: torch.Tensor, rot: torch.Tensor):
     return zmp, d.com[:, 2].numpy(), f[:, 2], f[:, :2], polys, (kind == 0) & valid
 
 
-def solve_path(inputs, cfg, graph, eta, goal, q, base_pos, base_rot, *, smooth: float, tol: float, goal_rot=None, rot_mask=None):
+def solve_path(inputs, cfg, graph, eta, goal, q, base_pos, base_rot, *, smooth: float, tol: float, goal_rot=None, rot_mask=None,
+               physics=None):  # fmt: skip
     """The two-stage balance (module docstring) of :class:`~.balance_term.BalanceInputs` ``inputs``: ``rounds``
     of (the path correction, then ``iters`` whole-window Levenberg-Marquardt iterations on the goals it moved);
-    arguments and return as :meth:`~.balance_term.BalanceInputs.solve`."""
+    arguments and return as :meth:`~.balance_term.BalanceInputs.solve` (``physics``: the solve's physical terms,
+    kept in the iterations)."""
     from mer_models.batch import batch_fk
 
     from .ik import coupled_lm_ik
@@ -212,17 +221,29 @@ def solve_path(inputs, cfg, graph, eta, goal, q, base_pos, base_rot, *, smooth: 
     goal_w = torch_weights(eta, torch.as_tensor(node_w, dtype=eta.dtype, device=eta.device))  # (B, Jr)
     total = torch.zeros(B, T, 3, dtype=goal.dtype, device=goal.device)
     gkw = {"goal_rot": goal_rot, "rot_mask": rot_mask}
+    if c.physics_gain == 0:
+        physics = None
+    if physics is not None and c.physics_gain != 1:  # the floor and the joint speeds held harder while the legs take up the path
+        import dataclasses
+
+        pc = physics.cfg
+        physics = dataclasses.replace(physics, cfg=dataclasses.replace(pc, w_floor=pc.w_floor * c.physics_gain,
+                                                                       w_speed=pc.w_speed * c.physics_gain))  # fmt: skip
     for _ in range(c.rounds):
         pos, rot = batch_fk(graph, q, base_pos, base_rot)
         step = torch.zeros_like(total)
         for b in range(B):
             zmp, cz, fz, acc, polys, flight = _frames(inputs, pos[b, :, :J].double().cpu(), rot[b, :, :J].double().cpu())
+            out = [float(np.max(n @ zmp[t] + d)) for t, (n, d) in ((t, p) for t, p in enumerate(polys) if p is not None)]
+            log.debug("balance round %d, sample %d: %d of %d contact frames with the ZMP > 2 cm out (median %.3f m)", _, b,
+                      int((np.asarray(out) > 0.02).sum()), len(out), float(np.median(out)) if out else 0.0)  # fmt: skip
+            prior = total[b, :, :2].double().cpu().numpy() * gain[b]
             dc = path_correction(zmp, cz, fz, polys, flight, acc, inputs.fps, margin=c.margin, smooth=c.path_smooth,
-                                 flight_weight=c.flight_weight)  # fmt: skip
+                                 flight_weight=c.flight_weight, prior=prior)  # fmt: skip
             step[b, :, :2] = torch.as_tensor(dc / gain[b], dtype=goal.dtype, device=goal.device)
         total = total + step
         base_pos = base_pos + step
         moved = goal + goal_w[:, None, :, None] * total[:, :, None, :]
         q, base_pos, base_rot = coupled_lm_ik(cfg, graph, eta, moved, q, base_pos, base_rot, iters=c.iters, smooth=smooth, tol=tol,
-                                              **gkw)  # fmt: skip
+                                              physics=physics, **gkw)  # fmt: skip
     return q, base_pos, base_rot

@@ -77,6 +77,7 @@ class BalanceConfig:
     method: str = "path"
     margin: float = 0.0
     path_smooth: float = 1.0
+    physics_gain: float = 10.0
 
     def __post_init__(self) -> None:
         for k in ("weight", "hold_weight", "flight_weight", "tol", "change_smooth"):
@@ -329,12 +330,12 @@ class BalanceInputs:
 
     def solve(self, cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: torch.Tensor, base_pos: torch.Tensor,
               base_rot: torch.Tensor, *, smooth: float, tol: float, goal_rot: torch.Tensor | None = None,
-              rot_mask: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:  # fmt: skip
+              rot_mask: torch.Tensor | None = None, physics: Any = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:  # fmt: skip
         """The term's rounds after a solve (module docstring): ``q`` (B, T, J), ``base_pos`` (B, T, 3),
         ``base_rot`` (B, T, 3, 3) in, the balanced motion out (arguments as :func:`~.ik.coupled_lm_ik`)."""
         if self.cfg.method == "path":
             return solve_path(self, cfg, graph, eta, goal, q, base_pos, base_rot, smooth=smooth, tol=tol, goal_rot=goal_rot,
-                              rot_mask=rot_mask)  # fmt: skip
+                              rot_mask=rot_mask, physics=physics)  # fmt: skip
         plain = q
         for _ in range(self.cfg.rounds):
             self.read_support(*batch_fk(graph, q, base_pos, base_rot))
