@@ -50,8 +50,13 @@ from mer_models.solver.physics import PhysicsConfig  # noqa: E402
 
 CLIPS = ("walk1_subject1", "run1_subject2", "jumps1_subject1", "dance1_subject1", "fallAndGetUp1_subject1", "fight1_subject2")
 FPS = 30.0
-METHODS = {"optimize": {}, "physics": {"physics": PhysicsConfig()}, "balance": {"balance": BalanceConfig()},
-           "physics+balance": {"physics": PhysicsConfig(), "balance": BalanceConfig()}, "rows": {"balance": BalanceConfig(method="rows")}}
+METHODS = {
+    "optimize": {},
+    "physics": {"physics": PhysicsConfig()},
+    "balance": {"balance": BalanceConfig()},
+    "physics+balance": {"physics": PhysicsConfig(), "balance": BalanceConfig()},
+    "rows": {"balance": BalanceConfig(method="rows")},
+}
 COLS = (("balance_infeasible", "infeasible", 1), ("zmp_out_single", "zmp>2cm 1ft", 1), ("zmp_out_double", "zmp>2cm 2+", 1),
         ("zmp_out_dist", "out 1ft[cm]", 100), ("pull_frames", "pull", 1), ("slip_frames", "slip", 1),
         ("flight_frames", "flight", 1), ("torque_frames", ">effort", 1), ("g_mpbpe", "g-mpbpe", 1), ("g_ratio", "x kin", 1),
@@ -125,7 +130,9 @@ def main(argv=None) -> int:
                     mo = res.motion
                     met = _measure(robot, mo.q, mo.base_pos, mo.base_rot, args.torques)
                     seq = sequence_metrics(feats, src.skeleton, mo, prepared=res.prepared, geometry=geos[t])
-                    met.update({k: seq[k] for k in ("g_mpbpe", "body_floor_frames", "limit_violation", "speed_frames", "jerk_frame")})
+                    met.update(
+                        {k: seq[k] for k in ("g_mpbpe", "body_floor_frames", "limit_violation", "speed_frames", "jerk_frame")}
+                    )
                     met["seconds"] = sec
                     met["h1_dist"] = (float(np.linalg.norm(pelvis_frame(*mo.forward_kinematics()) - h1_local, axis=-1).mean())
                                       if t == "h1" and h1_local is not None else float("nan"))  # fmt: skip

@@ -1,6 +1,14 @@
 """The balance term (``--balance``, opt-in): a motion whose mass could do what it shows (docs/model.md §Balance).
 
-After the kinematic solve (and the physical terms), :attr:`BalanceConfig.rounds` rounds of whole-window
+Two methods (:attr:`BalanceConfig.method`). **``path``** (the default, :mod:`.balance_path`): each round
+corrects the centre of mass's horizontal path over the whole window by a banded least-squares problem
+(the ZMP of the metric, linear in that path, held in the support polygon, flight frames ballistic), moves
+every key-point goal above the feet with it and runs ``iters`` whole-window Levenberg-Marquardt iterations
+(with the solve's physical terms, the floor and joint speed ``physics_gain`` x harder): it moves the base's
+horizontal path and the body above the legs, the legs taking up the difference. **``rows``** (the first
+attempt, kept for comparison; docs/decisions.md §The balance term), below:
+
+after the kinematic solve (and the physical terms), :attr:`BalanceConfig.rounds` rounds of whole-window
 Levenberg-Marquardt iterations (:func:`~.ik.coupled_lm_ik`, the same energy) add, per frame ``t``,
 residuals of the motion's own dynamics as the balance metric measures them
 (:mod:`mer_data.kinematics.dynamics`: second differences of every body's centre of mass, the metric's
@@ -63,7 +71,10 @@ class BalanceConfig:
     of a polygon it relied on); tol: how far inside the polygon's edges the ZMP is held [m]; rounds x
     iters: Levenberg-Marquardt iterations, the polygons read from the motion before each round;
     change_smooth: the prior on the change from the kinematic solution, relative to the solve's
-    temporal prior.
+    temporal prior (``rows``). method: ``path`` or ``rows`` (module docstring); margin: how far inside the
+    support polygon the path correction puts the ZMP [m]; path_smooth: the weight of the correction's
+    filtered acceleration (in ZMP units, ``c_z / g`` times it) against its size; physics_gain: the
+    solve's floor and joint-speed terms this much harder in the ``path`` rounds (0: without the physical terms).
     """
 
     weight: float = 30.0
