@@ -55,7 +55,7 @@ METHODS = {
     "physics": {"physics": PhysicsConfig()},
     "balance": {"balance": BalanceConfig()},
     "physics+balance": {"physics": PhysicsConfig(), "balance": BalanceConfig()},
-    "rows": {"balance": BalanceConfig(method="rows")},
+    "rows": {"balance": BalanceConfig(method="rows", rounds=2, margin=0.0)},
 }
 COLS = (("balance_infeasible", "infeasible", 1), ("zmp_out_single", "zmp>2cm 1ft", 1), ("zmp_out_double", "zmp>2cm 2+", 1),
         ("zmp_out_dist", "out 1ft[cm]", 100), ("pull_frames", "pull", 1), ("slip_frames", "slip", 1),

@@ -82,12 +82,12 @@ class BalanceConfig:
     down: float | None = 0.01
     flight_weight: float = 3.0
     tol: float = 0.01
-    rounds: int = 2
+    rounds: int = 6
     iters: int = 6
     change_smooth: float = 1.0
     method: str = "path"
-    margin: float = 0.0
-    path_smooth: float = 1.0
+    margin: float = 0.01
+    path_smooth: float = 0.1
     physics_gain: float = 10.0
 
     def __post_init__(self) -> None:
