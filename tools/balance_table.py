@@ -21,6 +21,7 @@ data: never commit its output.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -49,11 +50,18 @@ from mer_models.solver.physics import PhysicsConfig  # noqa: E402
 
 CLIPS = ("walk1_subject1", "run1_subject2", "jumps1_subject1", "dance1_subject1", "fallAndGetUp1_subject1", "fight1_subject2")
 FPS = 30.0
-METHODS = {"optimize": {}, "physics": {"physics": PhysicsConfig()}, "balance": {"balance": BalanceConfig()}}
+METHODS = {
+    "optimize": {},
+    "physics": {"physics": PhysicsConfig()},
+    "balance": {"balance": BalanceConfig()},
+    "physics+balance": {"physics": PhysicsConfig(), "balance": BalanceConfig()},
+    "rows": {"balance": BalanceConfig(method="rows", rounds=2, margin=0.0)},
+}
 COLS = (("balance_infeasible", "infeasible", 1), ("zmp_out_single", "zmp>2cm 1ft", 1), ("zmp_out_double", "zmp>2cm 2+", 1),
         ("zmp_out_dist", "out 1ft[cm]", 100), ("pull_frames", "pull", 1), ("slip_frames", "slip", 1),
         ("flight_frames", "flight", 1), ("torque_frames", ">effort", 1), ("g_mpbpe", "g-mpbpe", 1), ("g_ratio", "x kin", 1),
-        ("h1_dist", "toH1[cm]", 100), ("h1_ratio", "x kin", 1), ("seconds", "s", 1), ("s_ratio", "x kin", 1))  # fmt: skip
+        ("h1_dist", "toH1[cm]", 100), ("h1_ratio", "x kin", 1), ("seconds", "s", 1), ("s_ratio", "x kin", 1),
+        ("body_floor_frames", "body<-1cm", 1), ("limit_violation", "limits", 1), ("speed_frames", ">speed", 1), ("jerk_frame", "jerk", 1))  # fmt: skip
 
 
 def _measure(robot, q, base_pos, base_rot, torques: bool) -> dict:
@@ -78,12 +86,16 @@ def main(argv=None) -> int:
     p.add_argument("--start", type=int, default=600)
     p.add_argument("--end", type=int, default=1050)
     p.add_argument("--methods", nargs="+", default=["optimize", "balance"], choices=list(METHODS))
+    p.add_argument("--balance-config", default="{}", help="BalanceConfig fields as JSON, e.g. '{\"rounds\": 4}'")
     p.add_argument("--torques", action="store_true", help="also the joint torques (their LP is most of the time)")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--json", help="append every run here as it finishes (JSON lines), then the table's rows")
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
     sl = slice(args.start, args.end)
+    bcfg = json.loads(args.balance_config)
+    methods = {k: {n: (BalanceConfig(**{**dataclasses.asdict(v), **bcfg}) if n == "balance" else v) for n, v in kw.items()}
+               for k, kw in METHODS.items()}  # fmt: skip
     out = Path(args.json) if args.json else None
 
     def record(row: dict) -> None:
@@ -94,6 +106,7 @@ def main(argv=None) -> int:
 
     runs: list[dict] = []
     targets = {t: load_robot(t) for t in args.targets}
+    geos = {t: collision_model(r) for t, r in targets.items()}
     h1 = load_robot("h1")
     for s in args.sources:
         src = load_robot(s)
@@ -112,15 +125,18 @@ def main(argv=None) -> int:
                 base: dict = {}
                 for method in args.methods:
                     t0 = time.perf_counter()
-                    res = retarget_features(feats, src.skeleton, robot.skeleton, method="optimize", fps=FPS, **METHODS[method])
+                    res = retarget_features(feats, src.skeleton, robot.skeleton, method="optimize", fps=FPS, **methods[method])
                     sec = time.perf_counter() - t0
                     mo = res.motion
                     met = _measure(robot, mo.q, mo.base_pos, mo.base_rot, args.torques)
-                    met["g_mpbpe"] = sequence_metrics(feats, src.skeleton, mo, prepared=res.prepared)["g_mpbpe"]
+                    seq = sequence_metrics(feats, src.skeleton, mo, prepared=res.prepared, geometry=geos[t])
+                    met.update(
+                        {k: seq[k] for k in ("g_mpbpe", "body_floor_frames", "limit_violation", "speed_frames", "jerk_frame")}
+                    )
                     met["seconds"] = sec
                     met["h1_dist"] = (float(np.linalg.norm(pelvis_frame(*mo.forward_kinematics()) - h1_local, axis=-1).mean())
                                       if t == "h1" and h1_local is not None else float("nan"))  # fmt: skip
-                    if method == "optimize":
+                    if method == args.methods[0]:  # the ratios are to the first method's
                         base = met
                     for k, b in (("g_ratio", "g_mpbpe"), ("h1_ratio", "h1_dist"), ("s_ratio", "seconds")):
                         met[k] = met[b] / base[b] if base else float("nan")

@@ -41,6 +41,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--physics", action=argparse.BooleanOptionalAction, default=True,
                    help="the optimiser (methods optimize and refine) with its physical terms, as mer retarget (default; "
                         "--no-physics: key points alone, the paper's energy)")
+    p.add_argument("--balance", action="store_true",
+                   help="the optimiser (methods optimize and refine) with the balance term, as mer retarget --balance "
+                        "(docs/model.md §Balance)")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.add_argument("--save", help="also write the JSON report to this file")
     b = p.add_argument_group("humans (--source bvh|smpl|joints: DIR/<source>/* or DIR/*.bvh|.npz|.npy)")
@@ -53,6 +56,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_evaluate)
 
 
+def _balance(args, methods):
+    """The balance term's configuration with ``--balance``, else None; refused where no method runs the optimiser."""
+    if not args.balance:
+        return None
+    if not {"optimize", "refine"} & set(methods):
+        from mer_data.base.errors import MerError
+
+        raise MerError("--balance works in the optimiser, and none of these methods runs it: " + ", ".join(methods),
+                       fix="add --methods optimize (or refine)")  # fmt: skip
+    from mer_models.solver.balance_term import BalanceConfig
+
+    return BalanceConfig()
+
+
 def cmd_evaluate(args) -> int:
     from mer_data.base.atomic import atomic_write
     from mer_models.retarget.evaluate import EvalOptions, evaluate, format_table
@@ -63,7 +80,7 @@ def cmd_evaluate(args) -> int:
     methods = tuple(args.methods or (("model", "optimize") if ckpt is not None else ("optimize",)))
     opts = EvalOptions(split=args.split, stride=args.stride, max_windows=args.max_windows, methods=methods,
                        steps=args.steps, guidance=args.guidance, init_noise=args.init_noise, batch_size=args.batch_size, seed=args.seed, scaling=args.scaling, refine=args.refine, bf16=args.bf16,
-                       physics=physics_option(args), bvh=bvh_options(args) if args.source.lower() in ("bvh", "smpl", "joints") else None,
+                       physics=physics_option(args), balance=_balance(args, methods), bvh=bvh_options(args) if args.source.lower() in ("bvh", "smpl", "joints") else None,
                        **{k: v for k, v in {"opt_iters": args.opt_iters, "opt_gn_iters": args.opt_gn_iters}.items() if v is not None})  # fmt: skip
     report = evaluate(args.input, args.source, args.targets, checkpoint=ckpt, opts=opts,
                       progress=lambda s: print(s, file=sys.stderr))  # fmt: skip

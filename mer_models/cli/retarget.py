@@ -118,8 +118,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "stay on the floor without sliding while the human's foot is down (docs/model.md)")
     p.add_argument("--balance", action="store_true",
                    help="the optimiser (--method optimize, --refine) also keeps the zero-moment point in the support polygon "
-                        "and flight ballistic, moving the base's path and the torso's lean (opt-in, a single file for now; several "
-                        "times slower; docs/model.md §Balance)")
+                        "and flight ballistic, moving the base's horizontal path with the body above the legs (opt-in; "
+                        "about 3x slower; docs/model.md §Balance)")
     p.set_defaults(func=cmd_retarget)
 
 
@@ -320,15 +320,13 @@ def _dataset(args) -> int:
         from mer_models.export.writers import require_tracker
 
         require_tracker(args.npz_for)
-    if args.balance:
-        raise MerError("--balance is not yet wired into a dataset run (a single file only: docs/model.md §Balance)",
-                       fix="retarget the clips one by one: mer retarget CLIP.csv --source ... --target ... --method optimize --balance")
     if args.video is not None:
         raise MerError("--video writes one file's video; a dataset run does not make videos",
                        fix="retarget the clip you want to see on its own: mer retarget CLIP.csv --source ... --target ... --video OUT.gif")
     from mer_data.motion.sources import HUMAN_SOURCES
 
     method, _ = choose_method(args, args.source.lower() in HUMAN_SOURCES)
+    args.method = method
     check_refine(args)
     checkpoint, kw = None, {}
     if method == "diffusion":
@@ -377,7 +375,8 @@ def _dataset(args) -> int:
             args.input_dir, args.source, args.targets, args.out, method=method, checkpoint=checkpoint,
             formats=args.formats, shard_index=args.shard_index, num_shards=args.num_shards, input_fps=args.fps or 30.0, npz_fps=args.npz_fps,
             npz_for=args.npz_for, device=args.device, progress=progress, physics=physics_option(args),
-            bvh=bvh_options(args) if args.source.lower() in ("bvh", "smpl", "joints") else None, workers=workers, on_start=started, **kw,
+            bvh=bvh_options(args) if args.source.lower() in ("bvh", "smpl", "joints") else None, workers=workers, on_start=started,
+            balance=balance_option(args), **kw,
         )  # fmt: skip
     finally:
         if bar is not None:

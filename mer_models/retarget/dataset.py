@@ -142,10 +142,10 @@ def _lock_stance(c: _Clip, src: Skeleton, geometry, physics) -> None:
 
 
 def _solve_batch(items: list[tuple[_Clip, tuple[int, int, int, int]]], target: Skeleton, span: int,
-                 energy: EnergyConfig, device: str, physics=None, geometry=None) -> None:  # fmt: skip
+                 energy: EnergyConfig, device: str, physics=None, geometry=None, balance=None) -> None:  # fmt: skip
     """Optimise segments of several clips (sources of one node count) in one batch and write their
     cores back into the clips (``physics``: a :class:`~mer_models.solver.physics.PhysicsConfig`, with
-    the target's ``geometry``)."""
+    the target's ``geometry``; ``balance``: the target's :class:`~mer_models.solver.balance_term.BalanceInputs`)."""
     src = items[0][0].src
     etas = {}
     for c, _ in items:
@@ -174,7 +174,7 @@ def _solve_batch(items: list[tuple[_Clip, tuple[int, int, int, int]]], target: S
         energy, g, torch.from_numpy(eta_b.astype(np.float32)).to(device),
         torch.from_numpy(goal).float().to(device), axis_angle_to_matrix(torch.from_numpy(rvec).float()).to(device),
         goal_rot=torch.from_numpy(grot).float().to(device),
-        rot_mask=torch.from_numpy(np.stack([c.rot_mask for c, _ in items])).to(device), physics=phys,
+        rot_mask=torch.from_numpy(np.stack([c.rot_mask for c, _ in items])).to(device), physics=phys, balance=balance,
     )  # fmt: skip
     q, bp, br = (out[k].double().cpu().numpy() for k in ("q", "base_pos", "base_rot"))
     for k, (c, (a, _, s, e)) in enumerate(items):
@@ -257,6 +257,7 @@ class _Setup:
     device: str
     physics: Any
     bvh: Any
+    balance: Any = None
 
 
 def _frames_estimate(path: Path, input_fps: float) -> float:
@@ -306,6 +307,11 @@ def _solve_chunk(setup: _Setup, jobs: list[Job]) -> list[dict]:
     target = setup.robots[jobs[0].target]
     physics = setup.physics
     geometry = collision_model(target) if physics is not None else None
+    balance = None
+    if setup.balance is not None:
+        from .clip import balance_inputs
+
+        balance = balance_inputs(target.skeleton, setup.balance, MODEL_FPS)
     span = setup.segment + 2 * setup.context
     per_batch = max(1, setup.frames_per_batch // span)
     queues: dict[tuple, list[tuple[_Clip, tuple[int, int, int, int]]]] = {}  # per source node layout
@@ -324,7 +330,7 @@ def _solve_chunk(setup: _Setup, jobs: list[Job]) -> list[dict]:
             while len(queue) >= per_batch or (last and queue):
                 items, queue = queue[:per_batch], queue[per_batch:]
                 queues[key] = queue
-                _solve_batch(items, target.skeleton, span, setup.energy, setup.device, physics, geometry)
+                _solve_batch(items, target.skeleton, span, setup.energy, setup.device, physics, geometry, balance)
                 for c2 in dict.fromkeys(c for c, _ in items):
                     if c2.pending == 0:
                         rows.append(_finish(c2, target, setup.formats, setup.method, time.perf_counter() - started[c2.job.clip],
@@ -356,6 +362,7 @@ def retarget_dataset(
     physics=None,
     bvh=None,
     workers: int = 1,
+    balance=None,
     on_start: Callable[[dict], None] | None = None,
     **model_kw,
 ) -> dict:
@@ -376,6 +383,8 @@ def retarget_dataset(
             :func:`find_bvh_clips`), :class:`~mer_data.motion.sources.BvhOptions`.
         physics: a :class:`~mer_models.solver.physics.PhysicsConfig`: the optimiser's physical terms
             (both methods: ``diffusion`` with ``refine``); None: key points and orientations only.
+        balance: a :class:`~mer_models.solver.balance_term.BalanceConfig`: the optimiser's balance term
+            (both methods, as ``physics``; docs/model.md §Balance); None: none.
         model_kw: options of ``diffusion`` (``steps``, ``guidance``, ``seed``, ``allow_unseen``, ``bf16``, and
             ``refine``: at most that many optimiser iterations from the model's output, as for one file).
 
@@ -424,7 +433,7 @@ def retarget_dataset(
             results = retarget_features_many(world, src, [robots[j.target].skeleton for j in cjobs], method="diffusion", checkpoint=checkpoint,
                                              fps=MODEL_FPS, physics=physics,
                                              geometry=None if physics is None else [collision_model(robots[j.target]) for j in cjobs],
-                                             **model_kw)  # fmt: skip
+                                             balance=balance, **model_kw)  # fmt: skip
             seconds = (time.perf_counter() - t0) / len(cjobs)  # the pass is shared: each pair gets its share
             for j, res in zip(cjobs, results):
                 _write(j, robots[j.target], res.motion, world, src, formats, res.method, seconds, res.prepared, npz_fps, npz_for)
@@ -434,7 +443,7 @@ def retarget_dataset(
                     progress(pairs_done, len(todo))
     if chunks:
         setup = _Setup(src_robot, robots, tuple(formats), method, input_fps, npz_fps, npz_for, segment, context, frames_per_batch,
-                       energy, device, physics, bvh)  # fmt: skip
+                       energy, device, physics, bvh, balance=balance)  # fmt: skip
 
         def collect(rows: list[dict]) -> None:
             nonlocal frames_done, pairs_done

@@ -34,6 +34,7 @@ from mer_models.zoo.checkpoint import Checkpoint, check_robot
 
 from .artifacts import ARTIFACT_KEYS, motion_artifacts
 from .balance import BALANCE_KEYS
+from .clip import balance_inputs
 from .inference import model_batch, optimize_batch
 from .metrics import summarize, window_metrics
 
@@ -66,6 +67,8 @@ class EvalOptions:
         physics: the optimiser's physical terms (``optimize`` and ``refine``;
             :class:`~mer_models.solver.physics.PhysicsConfig`), None: without.
         bvh: how BVH files are read (source ``bvh``; :class:`~mer_data.motion.sources.BvhOptions`).
+        balance: the optimiser's balance term (``optimize`` and ``refine``;
+            :class:`~mer_models.solver.balance_term.BalanceConfig`; docs/model.md §Balance), None: without.
     """
 
     split: str = "paper"
@@ -86,6 +89,7 @@ class EvalOptions:
     artifacts: bool = True
     physics: object = None
     bvh: object = None
+    balance: object = None
 
 
 def _clip_files(folder: Path) -> dict[str, Path]:
@@ -268,6 +272,8 @@ def evaluate(
                     ref = w[a]["skeleton"]  # one node layout per batch (a robot's; or humans' of one studio)
                     phys_kw = {"physics": opts.physics, "geometry": geometry, "ref_skeleton": ref, "fps": WINDOW_FPS,
                                "target_skeleton": tgt} if opts.physics is not None else {}  # fmt: skip
+                    if opts.balance is not None:
+                        phys_kw["balance"] = balance_inputs(tgt, opts.balance, WINDOW_FPS)
                     samples = []
                     for x, gt in zip(w[a:b], gts[a:b]):
                         fp = x["skeleton"].fingerprint
@@ -305,7 +311,8 @@ def evaluate(
         "model": str(checkpoint.path) if checkpoint is not None else None,
         "options": {**opts.__dict__, "methods": list(methods),
                     "physics": None if opts.physics is None else dataclasses.asdict(opts.physics),
-                    "bvh": None if opts.bvh is None else dataclasses.asdict(opts.bvh)},  # fmt: skip
+                    "bvh": None if opts.bvh is None else dataclasses.asdict(opts.bvh),
+                    "balance": None if opts.balance is None else dataclasses.asdict(opts.balance)},  # fmt: skip
         "rows": rows,
     }
 

@@ -130,6 +130,7 @@ def optimize_batch(
     ref_skeleton=None,
     fps: float = 30.0,
     target_skeleton=None,
+    balance=None,
 ) -> dict[str, torch.Tensor]:
     """The optimiser on a collated batch, in the batch's frame (no model needed).
 
@@ -141,7 +142,8 @@ def optimize_batch(
     collision model is ``geometry``, every sample's reference of ``ref_skeleton`` (the source's
     foot contacts are read from the batch's reference features, at ``fps`` [Hz]); with
     ``target_skeleton`` (the batch's one target) each window is then made feasible
-    (:func:`mer_models.retarget.feasible.feasible_motion`).
+    (:func:`mer_models.retarget.feasible.feasible_motion`). ``balance``: the target's
+    :class:`~mer_models.solver.balance_term.BalanceInputs` (the balance term, docs/model.md §Balance).
     """
     g = graph_from_batch(batch, "tgt", device)
     goal = batch["ref_scaled_pos"].to(device, torch.float32)
@@ -159,7 +161,7 @@ def optimize_batch(
         contacts = torch.from_numpy(np.stack([foot_contacts(p, ref_skeleton, fps) for p in pos]))
         phys = PhysicsInputs.of_reference(geometry, contacts, fps, physics, ref_skeleton)
     out = optimize_motion(energy, g, batch["joint_map"].to(device, torch.float32), goal, ref_rot, iters=iters, gn_iters=gn_iters,
-                          init=init, smooth=smooth, fine=fine, physics=phys, fps=fps, **rkw)  # fmt: skip
+                          init=init, smooth=smooth, fine=fine, physics=phys, fps=fps, balance=balance, **rkw)  # fmt: skip
     res = {"q": out["q"], "base_pos": out["base_pos"], "base_rot": out["base_rot"], "energy": out["energy"]}
     if phys is not None and target_skeleton is not None and physics.feasible:
         from mer_models.export.writers import TargetMotion

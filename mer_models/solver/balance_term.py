@@ -1,6 +1,14 @@
 """The balance term (``--balance``, opt-in): a motion whose mass could do what it shows (docs/model.md §Balance).
 
-After the kinematic solve (and the physical terms), :attr:`BalanceConfig.rounds` rounds of whole-window
+Two methods (:attr:`BalanceConfig.method`). **``path``** (the default, :mod:`.balance_path`): each round
+corrects the centre of mass's horizontal path over the whole window by a banded least-squares problem
+(the ZMP of the metric, linear in that path, held in the support polygon, flight frames ballistic), moves
+every key-point goal above the feet with it and runs ``iters`` whole-window Levenberg-Marquardt iterations
+(with the solve's physical terms, the floor and joint speed ``physics_gain`` x harder): it moves the base's
+horizontal path and the body above the legs, the legs taking up the difference. **``rows``** (the first
+attempt, kept for comparison; docs/decisions.md §The balance term), below:
+
+after the kinematic solve (and the physical terms), :attr:`BalanceConfig.rounds` rounds of whole-window
 Levenberg-Marquardt iterations (:func:`~.ik.coupled_lm_ik`, the same energy) add, per frame ``t``,
 residuals of the motion's own dynamics as the balance metric measures them
 (:mod:`mer_data.kinematics.dynamics`: second differences of every body's centre of mass, the metric's
@@ -43,6 +51,7 @@ from mer_data.kinematics.dynamics import BINOMIAL, GRAVITY
 from mer_data.kinematics.support import support_polygons
 from mer_models.batch import batch_fk
 
+from .balance_path import solve_path
 from .ik import ancestors, coupled_lm_ik
 
 __all__ = ["BalanceConfig", "BalanceInputs", "balance_rows", "MAX_CORNERS"]
@@ -62,7 +71,10 @@ class BalanceConfig:
     of a polygon it relied on); tol: how far inside the polygon's edges the ZMP is held [m]; rounds x
     iters: Levenberg-Marquardt iterations, the polygons read from the motion before each round;
     change_smooth: the prior on the change from the kinematic solution, relative to the solve's
-    temporal prior.
+    temporal prior (``rows``). method: ``path`` or ``rows`` (module docstring); margin: how far inside the
+    support polygon the path correction puts the ZMP [m]; path_smooth: the weight of the correction's
+    filtered acceleration (in ZMP units, ``c_z / g`` times it) against its size; physics_gain: the
+    solve's floor and joint-speed terms this much harder in the ``path`` rounds (0: without the physical terms).
     """
 
     weight: float = 30.0
@@ -70,9 +82,13 @@ class BalanceConfig:
     down: float | None = 0.01
     flight_weight: float = 3.0
     tol: float = 0.01
-    rounds: int = 2
+    rounds: int = 6
     iters: int = 6
     change_smooth: float = 1.0
+    method: str = "path"
+    margin: float = 0.01
+    path_smooth: float = 0.1
+    physics_gain: float = 10.0
 
     def __post_init__(self) -> None:
         for k in ("weight", "hold_weight", "flight_weight", "tol", "change_smooth"):
@@ -80,6 +96,8 @@ class BalanceConfig:
                 raise ValueError(f"BalanceConfig.{k} must be >= 0, got {getattr(self, k)}")
         if self.down is not None and not self.down > 0:
             raise ValueError(f"BalanceConfig.down must be > 0 or None, got {self.down}")
+        if self.method not in ("path", "rows"):
+            raise ValueError(f"BalanceConfig.method must be 'path' or 'rows', got {self.method!r}")
         if self.rounds < 1 or self.iters < 1:
             raise ValueError(f"BalanceConfig.rounds and iters must be >= 1, got {self.rounds}, {self.iters}")
 
@@ -277,6 +295,7 @@ class BalanceInputs:
     contact: torch.Tensor | None = None
     flight: torch.Tensor | None = None
     node: torch.Tensor | None = None
+    model: Any = None
 
     @classmethod
     def of_robot(cls, robot: Any, cfg: BalanceConfig, fps: float, geometry: Any = None) -> "BalanceInputs":
@@ -285,7 +304,7 @@ class BalanceInputs:
 
         mm = mass_model(robot)
         return cls(cfg, np.asarray(mm.mass, np.float64), np.asarray(mm.com, np.float64),
-                   collision_model(robot) if geometry is None else geometry, fps)  # fmt: skip
+                   collision_model(robot) if geometry is None else geometry, fps, model=mm)  # fmt: skip
 
     def build(self, P: Any, w_kp: float) -> _Rows:
         return _Rows(self, P, w_kp)
@@ -322,9 +341,12 @@ class BalanceInputs:
 
     def solve(self, cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: torch.Tensor, base_pos: torch.Tensor,
               base_rot: torch.Tensor, *, smooth: float, tol: float, goal_rot: torch.Tensor | None = None,
-              rot_mask: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:  # fmt: skip
+              rot_mask: torch.Tensor | None = None, physics: Any = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:  # fmt: skip
         """The term's rounds after a solve (module docstring): ``q`` (B, T, J), ``base_pos`` (B, T, 3),
         ``base_rot`` (B, T, 3, 3) in, the balanced motion out (arguments as :func:`~.ik.coupled_lm_ik`)."""
+        if self.cfg.method == "path":
+            return solve_path(self, cfg, graph, eta, goal, q, base_pos, base_rot, smooth=smooth, tol=tol, goal_rot=goal_rot,
+                              rot_mask=rot_mask, physics=physics)  # fmt: skip
         plain = q
         for _ in range(self.cfg.rounds):
             self.read_support(*batch_fk(graph, q, base_pos, base_rot))

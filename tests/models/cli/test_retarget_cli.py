@@ -132,16 +132,42 @@ def test_a_robot_without_lafan1_data_is_a_source_in_mers_own_layout(tmp_path, ca
 
 
 def test_balance_runs_in_the_optimiser_and_is_refused_without_one(tmp_path, capsys):
-    """``--balance`` (docs/model.md §Balance): the optimiser writes the motion; a run with no optimiser
-    stage (the model alone) and a dataset run (not wired yet) are refused before any work."""
-    src = synthetic_csv(tmp_path / "walk.csv", frames=12)
+    """``--balance`` (docs/model.md §Balance): the optimiser writes the motion, in a single file's run and in a
+    dataset run (whose metrics then read no more infeasible frames than without it); a run with no optimiser
+    stage (the model alone) is refused before any work."""
+    src = synthetic_csv(tmp_path / "in" / "g1" / "walk.csv", frames=40)
     code, _, err = run(capsys, "retarget", src, "--source", "g1", "--target", "g1", "--method", "optimize", "--no-physics", "--balance",
                        "-o", tmp_path / "b.csv")  # fmt: skip
     assert code == 0, err
-    assert np.loadtxt(tmp_path / "b.csv", delimiter=",").shape[0] == 12
+    assert np.loadtxt(tmp_path / "b.csv", delimiter=",").shape[0] == 40
     code, _, err = run(capsys, "retarget", src, "--source", "g1", "--target", "g1", "--method", "diffusion", "--balance", "-o", tmp_path / "d.csv")
     assert code == 1 and "--balance works in the optimiser" in err and "--method optimize" in err, err
     assert not (tmp_path / "d.csv").exists()
-    code, _, err = run(capsys, "retarget", "--input", tmp_path, "--source", "g1", "--targets", "g1", "--out", tmp_path / "ds", "--balance")
-    assert code == 1 and "not yet wired into a dataset run" in err, err
-    assert not (tmp_path / "ds").exists()
+    rows = {}
+    for name, extra in (("plain", []), ("balance", ["--balance"])):
+        code, _, err = run(capsys, "retarget", "--input", tmp_path / "in", "--source", "g1", "--targets", "g1", "--out", tmp_path / name,
+                           "--no-physics", "--workers", "1", *extra)  # fmt: skip
+        assert code == 0, err
+        rows[name] = json.loads((tmp_path / name / "g1" / "walk.metrics.json").read_text())
+    assert rows["plain"]["balance_infeasible"] > 0
+    assert rows["balance"]["balance_infeasible"] < rows["plain"]["balance_infeasible"], rows
+    plain = np.loadtxt(tmp_path / "plain" / "g1" / "walk.csv", delimiter=",")
+    assert np.abs(np.loadtxt(tmp_path / "balance" / "g1" / "walk.csv", delimiter=",") - plain).max() > 1e-3
+
+
+def test_evaluate_balance_runs_the_term_in_the_optimiser_and_is_refused_without_one(tmp_path, capsys):
+    """``mer evaluate --balance``: the optimiser's windows with the balance term (the report says so, and its
+    windows read fewer infeasible frames than without it); refused where no method runs the optimiser."""
+    data = tmp_path / "data"
+    synthetic_csv(data / "g1" / "walk1_subject1.csv", "g1", frames=120, seed=0)
+    reports = {}
+    for name, extra in (("plain", []), ("balance", ["--balance"])):
+        code, out, err = run(capsys, "evaluate", "--input", data, "--targets", "g1", "--methods", "optimize", "--split", "all",
+                             "--max-windows", "1", "--no-physics", "--json", *extra)  # fmt: skip
+        assert code == 0, err
+        reports[name] = json.loads(out)
+    assert reports["plain"]["options"]["balance"] is None and reports["balance"]["options"]["balance"]["method"] == "path"
+    inf = {k: r["rows"][0]["metrics"]["balance_infeasible"]["mean"] for k, r in reports.items()}
+    assert inf["balance"] < inf["plain"], inf
+    code, _, err = run(capsys, "evaluate", "--input", data, "--targets", "g1", "--methods", "model", "--balance")
+    assert code == 1 and "--balance works in the optimiser" in err and "--methods optimize" in err, err

@@ -124,6 +124,13 @@ def test_a_solve_moves_the_zmp_into_the_stance_foot():
     assert float((com[1][mid, 1] - com[0][mid, 1]).mean()) > 0.01, (
         com[1][mid, 1] - com[0][mid, 1]
     )  # the mass went left, over the stance foot
+    # as the balance metric reads it: every single-support frame's ZMP was outside the left sole, now none is
+    from mer_models.retarget.balance import balance_frames
+
+    for (p_, r_), want in ((P.fit(P.columns(q), base_pos, base_rot)[:2], True), (P.fit(P.columns(q2), bp2, br2)[:2], False)):
+        b = balance_frames(p_[0, :, :J].numpy(), r_[0, :, :J].numpy(), FPS, s, mm, geo, torques=False)
+        single = b["valid"] & (b["support"] == 1)
+        assert single.sum() >= T - 6 and bool((b["zmp_out"][single] == want).all()), (want, b["zmp_dist"])
     foot = s.node_index("left_ankle_roll_joint")
     rows = slice(3, T - 3)  # the frames with rows (each reaches three frames either side)
     assert float((pos2[0, rows, foot] - pos[0, rows, foot]).norm(dim=-1).max()) < 0.01
