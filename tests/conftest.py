@@ -68,6 +68,16 @@ def mer_home(tmp_path_factory, monkeypatch) -> Path:
     return home
 
 
+@pytest.fixture
+def torch_one_thread():
+    """torch on one thread for the test (what each dataset worker runs; restored after):
+    :func:`mer_models.retarget.workers.one_thread`."""
+    from mer_models.retarget.workers import one_thread
+
+    with one_thread():
+        yield
+
+
 @pytest.fixture(autouse=True)
 def _quiet_third_party():
     for name in ("yourdfpy", "trimesh", "pytorch_kinematics"):

@@ -310,8 +310,8 @@ def parse_sources(args: argparse.Namespace) -> dict[str, Path]:
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+def add_source_args(ap: argparse.ArgumentParser) -> None:
+    """``--source``, ``--mirrors`` and ``--rev``: where the upstream repositories are (:func:`parse_sources`)."""
     ap.add_argument(
         "--source",
         action="append",
@@ -321,6 +321,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--mirrors", type=Path, help="folder of mirrors <owner>+<name>/repo (for repos not given by --source)")
     ap.add_argument("--rev", default="HEAD", help="revision to read from git dirs without work tree (default HEAD)")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_source_args(ap)
     ap.add_argument("--robots", nargs="+", choices=sorted(ROBOTS), default=list(ROBOTS))
     ap.add_argument("--max-vertices", type=int, default=48, help="vertex budget of a hull (default 48)")
     ap.add_argument(

@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from build_collision import BUILTIN, ROBOTS, RobotSpec, Upstream, parse_sources, resolve_mesh  # noqa: E402
+from build_collision import BUILTIN, ROBOTS, RobotSpec, Upstream, add_source_args, parse_sources, resolve_mesh  # noqa: E402
 
 #: Built-ins whose meshes are shipped, with the licence that allows it.
 SHIPPED = {
@@ -348,15 +348,7 @@ def check(name: str) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument(
-        "--source",
-        action="append",
-        default=[],
-        metavar="KEY=PATH",
-        help="upstream checkout or git dir; KEY is its GitHub owner/name or a robot name (repeatable)",
-    )
-    ap.add_argument("--mirrors", type=Path, help="folder of mirrors <owner>+<name>/repo (for repos not given by --source)")
-    ap.add_argument("--rev", default="HEAD", help="revision to read from git dirs without work tree (default HEAD)")
+    add_source_args(ap)
     ap.add_argument("--robots", nargs="+", choices=sorted(SHIPPED), default=list(SHIPPED))
     ap.add_argument("--faces", type=int, default=16000, help="face budget of one robot (default 16000)")
     ap.add_argument("--min-faces", type=int, default=48, help="faces a mesh file keeps at least (default 48)")

@@ -9,7 +9,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 from bvh_factory import BANDAI_NAMES, fold_root, human_definition, smooth_motion, upsample, write_bvh
 
 from mer_data.base.errors import MerError
@@ -26,12 +25,7 @@ TO_LAFAN = {
 }  # fmt: skip
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("torch_one_thread")
 
 
 def _key_points(path: Path, target: str = "g1") -> np.ndarray:

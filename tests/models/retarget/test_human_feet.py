@@ -22,13 +22,7 @@ from mer_models.retarget.artifacts import motion_artifacts
 from mer_models.retarget.clip import human_physics, retarget_features
 from mer_models.solver.physics import PhysicsConfig
 
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("torch_one_thread")
 
 
 def _floating_human(tmp_path, frames: int = 45):

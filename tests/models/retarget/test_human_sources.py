@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
 from scipy.spatial.transform import Rotation
 
 from mer_data.motion.body_model import BODY_MODEL_ENV, JOINT_NAMES, PARENTS
@@ -26,12 +25,8 @@ FRAMES = 90
 
 
 @pytest.fixture(autouse=True)
-def one_thread(monkeypatch):
+def _no_user_models(monkeypatch, torch_one_thread):
     monkeypatch.delenv(BODY_MODEL_ENV, raising=False)
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
 
 
 def _convert(clip, tmp_path):

@@ -82,6 +82,17 @@ def test_the_constraints_lift_a_sunken_reference_out_of_the_floor():
     assert m["g_mpbpe"] < 0.06
 
 
+def _talos_posed(T: int):
+    """TALOS (hulls) in ``T`` random poses at the origin: its problem, collision model, the angles, base
+    pose and node frames."""
+    from mer_models.batch import batch_fk
+
+    r, P, q = _problem("talos", T, 5)
+    base_pos = torch.zeros(1, T, 3, dtype=torch.float64)
+    base_rot = torch.eye(3, dtype=torch.float64).expand(1, T, 3, 3).clone()
+    return P, collision_model(r), q, base_pos, base_rot, *batch_fk(P.graph, q, base_pos, base_rot)
+
+
 def test_fixed_faces_give_the_separating_axis_depth_and_bound_it_after_a_move():
     """:mod:`mer_models.solver.faces` on TALOS (hulls) in random poses: at the pose where the faces are
     fixed, each entry's depth, point and normal are :func:`contact_points`' separating-axis ones; after
@@ -91,12 +102,7 @@ def test_fixed_faces_give_the_separating_axis_depth_and_bound_it_after_a_move():
     from mer_models.batch import batch_fk
     from mer_models.solver.faces import face_points, fix_faces
 
-    T = 6
-    r, P, q = _problem("talos", T, 5)
-    model = collision_model(r)
-    base_pos = torch.zeros(1, T, 3, dtype=torch.float64)
-    base_rot = torch.eye(3, dtype=torch.float64).expand(1, T, 3, 3).clone()
-    pos, rot = batch_fk(P.graph, q, base_pos, base_rot)
+    P, model, q, base_pos, base_rot, pos, rot = _talos_posed(6)
     found = pair_contacts(model, pos, rot, margin=0.05, top=8, which="sat")
     assert found is not None
     entries, (depth, point, normal, na, nb) = found
@@ -223,12 +229,7 @@ def test_face_points_reuse_the_last_two_poses_and_only_those():
     from mer_models.batch import batch_fk
     from mer_models.solver.faces import face_points, fix_faces
 
-    T = 4
-    r, P, q = _problem("talos", T, 5)
-    model = collision_model(r)
-    base_pos = torch.zeros(1, T, 3, dtype=torch.float64)
-    base_rot = torch.eye(3, dtype=torch.float64).expand(1, T, 3, 3).clone()
-    pos, rot = batch_fk(P.graph, q, base_pos, base_rot)
+    P, model, q, base_pos, base_rot, pos, rot = _talos_posed(4)
     entries, (depth, *_) = pair_contacts(model, pos, rot, margin=0.05, top=8, which="sat")
     faces = fix_faces(model, pos, rot, entries, depth.shape[-1], exact_over=0.0)
     assert faces["exact"] is not None  # some entries measured exactly at every pose
