@@ -201,6 +201,8 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
     rounds, worst = 0, q.new_zeros(B)
     faces, cand = None, None  # cand: the (frame, pair) entries the later rounds look at, set by round 0
     for rnd in range(c.al_rounds + 1):
+        if rnd == c.al_rounds and stats is None:  # the last round's measures only fill stats: nothing moves after it
+            break
         low = lowest_points(model, pos, rot)[0]  # (B, T, S)
         foot_z = torch.stack([low[..., f].amin(-1) if len(f) else low.new_full((B, T), float("inf")) for f in feet], -1)
         up = (foot_z - c.hover) * down  # (B, T, 2) > 0: hovering

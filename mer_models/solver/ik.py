@@ -416,27 +416,32 @@ def coupled_lm_ik(
     mu = torch.full((B, G), damping, dtype=P.dtype, device=P.dev)
     active = torch.ones(B, G, dtype=torch.bool, device=P.dev)
     done = 0
+    same = None  # the last iteration's linearisation, kept while no group accepts a step (the iterate is the same)
     for it in range(iters):
         report(it, iters)
-        h, g = P.linearise(pos, rot, kp, ocols)
-        h.diagonal(dim1=-2, dim2=-1).add_(prior_h)
-        g = g + prior_grad(qd)
-        c_speed = dense = None
-        if phys is not None:  # the physical terms, their coupled parts held at this iterate
-            state = phys.freeze(pos, rot, qd)
-            ph, pg, pc = phys.linearise(pos, rot, qd, state, with_cost=True)  # cost and rows from one evaluation
-            cost = frame_cost(fit, qd) + pc + phys.speed_cost(qd, P.cols)
-            h, g = h + ph, g + pg
-            sp = phys.speed_terms(qd, P.cols)  # joint speed: exact coupling of neighbouring frames
-            if sp is not None:
-                diag, off, grad = sp
-                h.diagonal(dim1=-2, dim2=-1)[..., :D].add_(diag)
-                g = g + torch.cat([grad, P.zeros(B, T, 6)], -1)
-                c_speed = torch.cat([off, P.zeros(B, T - 1, 6)], -1)
-            dense = phys.coupled_terms(pos, rot, state)  # two-frame rows with dense blocks (a stance foot's no-slip)
-            if dense is not None:
-                h, g = h + dense[0], g + dense[2]
-                dense = dense[1]
+        if same is not None:  # a refused step: the same point, so the same system; only the damping differs
+            h, g, c_speed, dense, state = same[0].clone(), *same[1:]
+        else:
+            h, g = P.linearise(pos, rot, kp, ocols)
+            h.diagonal(dim1=-2, dim2=-1).add_(prior_h)
+            g = g + prior_grad(qd)
+            c_speed = dense = state = None
+            if phys is not None:  # the physical terms, their coupled parts held at this iterate
+                state = phys.freeze(pos, rot, qd)
+                ph, pg, pc = phys.linearise(pos, rot, qd, state, with_cost=True)  # cost and rows from one evaluation
+                cost = frame_cost(fit, qd) + pc + phys.speed_cost(qd, P.cols)
+                h, g = h + ph, g + pg
+                sp = phys.speed_terms(qd, P.cols)  # joint speed: exact coupling of neighbouring frames
+                if sp is not None:
+                    diag, off, grad = sp
+                    h.diagonal(dim1=-2, dim2=-1)[..., :D].add_(diag)
+                    g = g + torch.cat([grad, P.zeros(B, T, 6)], -1)
+                    c_speed = torch.cat([off, P.zeros(B, T - 1, 6)], -1)
+                dense = phys.coupled_terms(pos, rot, state)  # two-frame rows with dense blocks (a stance foot's no-slip)
+                if dense is not None:
+                    h, g = h + dense[0], g + dense[2]
+                    dense = dense[1]
+            same = (h.clone(), g, c_speed, dense, state)
         # active set: a joint at a limit that the gradient pushes further out stays where it is
         gq = g[..., :D]
         fixed = ((qd <= P.lower) & (gq > 0)) | ((qd >= P.upper) & (gq < 0))  # (B, T, D)
@@ -471,6 +476,8 @@ def coupled_lm_ik(
         done = it + 1
         change = torch.where(ok, (total - total_c) / total.clamp_min(1e-12), torch.zeros_like(total))
         active = active & ~(ok & (change < tol))
+        if bool(ok.any()):
+            same = None
         if not bool(active.any()):
             break
     if stats is not None:
