@@ -113,9 +113,14 @@ def pair_depths(model: Any, pos: torch.Tensor, rot: torch.Tensor, pairs: Any = N
         for s in range(0, len(near), chunk):
             f, k = near[s : s + chunk, 0], near[s : s + chunk, 1]
             sa, sb = a[k], b[k]
-            # a face of either shape with all of the other's vertices outside separates them: cheap, and most near pairs are
-            sep_gap = _by_size(_inside, verts, planes, node, p2, r2, f, sa, sb, gap=True)
-            other = (sep_gap <= max(margin, 0.0)).nonzero().flatten()  # the rest are apart by more than margin already
+            # a face of either shape with all of the other's vertices outside separates them: cheap, and most near pairs are;
+            # first the other's bounding sphere against the faces (a lower bound of that gap, one point per entry)
+            sep_gap = torch.maximum(_sphere_gap(center, radius, planes, node, p2, r2, f, sa, sb),
+                                    _sphere_gap(center, radius, planes, node, p2, r2, f, sb, sa))
+            test = (sep_gap <= max(margin, 0.0)).nonzero().flatten()  # the rest are apart by more than margin already
+            if len(test):
+                sep_gap = sep_gap.index_put((test,), _by_size(_inside, verts, planes, node, p2, r2, f[test], sa[test], sb[test], gap=True))
+            other = test[sep_gap[test] <= max(margin, 0.0)]
             if len(other):
                 sep_gap = sep_gap.index_put((other,), torch.maximum(sep_gap[other], _by_size(_inside, verts, planes, node, p2, r2, f[other], sb[other], sa[other], gap=True)))
             v = -sep_gap
@@ -176,6 +181,16 @@ def _signed(pts, planes, node, pos, rot, f, sa, sb):
     local = torch.einsum("eji,epj->epi", rb, world - tb[:, None])  # into sb's node frame
     pl = planes[sb]  # (E, F, 4)
     return torch.einsum("epj,efj->epf", local, pl[..., :3]).add_(pl[:, None, :, 3]), world, rb  # in place: (E, P, F) made once
+
+
+def _sphere_gap(center, radius, planes, node, pos, rot, f, sa, sb) -> torch.Tensor:
+    """(E,) a lower bound of :func:`_inside`'s ``gap``: how far the best of ``sb``'s face planes has
+    ``sa``'s bounding sphere (so every one of its vertices) outside, at frames ``f`` [m]."""
+    ra, ta = rot[f, node[sa]], pos[f, node[sa]]
+    rb, tb = rot[f, node[sb]], pos[f, node[sb]]
+    c = torch.einsum("eij,ej->ei", rb.transpose(-1, -2), torch.einsum("eij,ej->ei", ra, center[sa]) + ta - tb)  # in sb's node frame
+    pl = planes[sb]  # (E, F, 4)
+    return (torch.einsum("ej,efj->ef", c, pl[..., :3]) + pl[..., 3] - radius[sa, None] * pl[..., :3].norm(dim=-1)).amax(-1)
 
 
 def _inside(pts, planes, node, pos, rot, f, sa, sb, gap: bool = False) -> torch.Tensor:
