@@ -3,7 +3,7 @@
 Retargets LAFAN1 windows of one source robot to each target with the plain optimiser and with
 ``PhysicsConfig(method="constraints")`` variants, back to back, and prints per variant g-mpbpe
 (and its ratio to the plain solution's, per window), jerk and frames/s as ratios of the same run,
-hovering, self-penetration deeper than 1 cm and any body below -1 cm
+hovering, self-penetration deeper than 1 cm, any body below -1 cm and the median stance skate
 (:mod:`mer_models.retarget.artifacts`). A variant is a name, then ``:field=value`` overrides of
 :class:`~mer_models.solver.physics.PhysicsConfig`:
 
@@ -92,7 +92,7 @@ def main(argv=None) -> int:
         geom = collision_model(robot)
         base = None
         for name, cfg in configs:
-            g, jerk, hover, self_pen, floor, sec, frames = [], [], [], [], [], 0.0, 0
+            g, jerk, hover, self_pen, floor, skate, sec, frames = [], [], [], [], [], [], 0.0, 0
             for f in feats.values():
                 t0 = time.perf_counter()
                 res = retarget_features(f, src.skeleton, robot.skeleton, method="optimize", fps=FPS, physics=cfg)
@@ -104,12 +104,13 @@ def main(argv=None) -> int:
                 hover.append(met["hover_frames"])
                 self_pen.append(met["selfpen_1cm_frames"])
                 floor.append(met["body_floor_frames"])
+                skate.append(met["skate_median"])
             row = {"g": np.array(g), "jerk": float(np.mean(jerk)), "fps": frames / sec}
             base = base or row
             per = " ".join(f"{x / y:.2f}" for x, y in zip(row["g"], base["g"]))
             print(f"{t:9s} {name:42s} g-mpbpe {1000 * row['g'].mean():5.1f} mm x{row['g'].mean() / base['g'].mean():.2f} [{per}] "
                   f"jerk x{row['jerk'] / base['jerk']:.2f} hovering {np.mean(hover):.3f} self>1cm {np.mean(self_pen):.3f} "
-                  f"body<-1cm {np.mean(floor):.3f} frames/s {row['fps']:.0f} x{row['fps'] / base['fps']:.2f}", flush=True)  # fmt: skip
+                  f"body<-1cm {np.mean(floor):.3f} skate {100 * np.nanmean(np.array(skate, float)):.1f} cm/s frames/s {row['fps']:.0f} x{row['fps'] / base['fps']:.2f}", flush=True)  # fmt: skip
     return 0
 
 

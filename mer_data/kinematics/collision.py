@@ -50,13 +50,16 @@ def lowest_points(model: Any, pos: torch.Tensor, rot: torch.Tensor) -> tuple[tor
 
 
 def pair_depths(model: Any, pos: torch.Tensor, rot: torch.Tensor, pairs: Any = None, *, margin: float = 0.0,
-                chunk: int = 2048, which: str = "points", where: torch.Tensor | None = None) -> torch.Tensor:  # fmt: skip
+                chunk: int = 2048, which: str = "points", where: torch.Tensor | None = None, exact: float | None = None) -> torch.Tensor:  # fmt: skip
     """Penetration depth of each checked pair (see the module docstring): (..., K) [m].
 
     Args:
         pairs: (K, 2) shape indices (default ``model.pairs``).
         where: optional bool (..., K): only these (frame, pair) entries are computed; the rest are ``-inf``.
         margin: pairs whose bounding spheres are more than ``margin`` apart are not computed exactly.
+        exact: only the pairs within this [m] (default ``margin``) by the cheap bounds are computed
+            exactly; the others up to ``margin`` keep a bound (``-gap``, the gap at least that): a
+            caller that asks "within margin?" of them gets a superset, and exact values near contact.
         chunk: (frame, pair) entries computed at once (memory ~ chunk * points * planes).
         which: the sample points whose depth is measured: ``points`` (vertices and edge points,
             the metrics) or ``vertices`` (about a tenth of them); or ``sat``, the separating-axis
@@ -105,6 +108,7 @@ def pair_depths(model: Any, pos: torch.Tensor, rot: torch.Tensor, pairs: Any = N
         far = sep > margin
         near[f[far], k[far]] = False
     near = near.nonzero()
+    within = margin if exact is None else min(exact, margin)
     if len(near):
         sat = which == "sat"
         pts, verts = _t(model.vertices if sat else getattr(model, which), pos), _t(model.vertices, pos)
@@ -117,10 +121,10 @@ def pair_depths(model: Any, pos: torch.Tensor, rot: torch.Tensor, pairs: Any = N
             # first the other's bounding sphere against the faces (a lower bound of that gap, one point per entry)
             sep_gap = torch.maximum(_sphere_gap(center, radius, planes, node, p2, r2, f, sa, sb),
                                     _sphere_gap(center, radius, planes, node, p2, r2, f, sb, sa))
-            test = (sep_gap <= max(margin, 0.0)).nonzero().flatten()  # the rest are apart by more than margin already
+            test = (sep_gap <= max(within, 0.0)).nonzero().flatten()  # the rest are apart by more than `within` already
             if len(test):
                 sep_gap = sep_gap.index_put((test,), _by_size(_inside, verts, planes, node, p2, r2, f[test], sa[test], sb[test], gap=True))
-            other = test[sep_gap[test] <= max(margin, 0.0)]
+            other = test[sep_gap[test] <= max(within, 0.0)]
             if len(other):
                 sep_gap = sep_gap.index_put((other,), torch.maximum(sep_gap[other], _by_size(_inside, verts, planes, node, p2, r2, f[other], sb[other], sa[other], gap=True)))
             v = -sep_gap

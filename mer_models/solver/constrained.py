@@ -200,10 +200,14 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
     search = torch.ones(B, T, dtype=torch.bool, device=dev)
     rounds, worst = 0, q.new_zeros(B)
     faces, cand = None, None  # cand: the (frame, pair) entries the later rounds look at, set by round 0
+    moved = torch.ones(T, dtype=torch.bool, device=dev)  # the frames the last round's solve took (the rest: measured before, unchanged)
+    low = q.new_zeros(B, T, S)
+    dc = q.new_full((B, T, Kp), float("-inf"))  # each entry's last measure (+ self_margin)
     for rnd in range(c.al_rounds + 1):
         if rnd == c.al_rounds and stats is None:  # the last round's measures only fill stats: nothing moves after it
             break
-        low = lowest_points(model, pos, rot)[0]  # (B, T, S)
+        m = None if bool(moved.all()) else moved.nonzero().flatten()
+        low = lowest_points(model, pos, rot)[0] if m is None else low.index_copy(1, m, lowest_points(model, pos[:, m], rot[:, m])[0])  # (B, T, S)
         foot_z = torch.stack([low[..., f].amin(-1) if len(f) else low.new_full((B, T), float("inf")) for f in feet], -1)
         up = (foot_z - c.hover) * down  # (B, T, 2) > 0: hovering
         slip, slide = None, q.new_zeros(B, T)
@@ -216,23 +220,28 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
         d = q.new_zeros(B, T, 0)
         if Kp:
             d = None
-            if faces is not None and rnd < c.al_rounds and (c.al_look <= 0 or rnd % c.al_look):  # the known entries along their round's faces (.faces: an upper bound)
-                d = _along_faces(model, pos, rot, faces, Kp) + c.self_margin
+            if faces is not None and rnd < c.al_rounds and (c.al_look <= 0 or rnd % c.al_look):  # the last solve's entries along their round's faces (.faces: an upper bound)
+                fd = _along_faces(model, pos, rot, faces, Kp) + c.self_margin
+                d = torch.where(fd > float("-inf"), fd, dc)  # the other entries' frames have not moved since measured
                 rest = torch.stack([(-low).amax(-1), d.amax(-1), up.amax(-1)], -1)
                 if not bool((rest > TOLERANCE_M).any()):
                     d = None  # about to stop: every pair looked at first, new ones included
             if d is None:
-                where = ((search[..., None] & cand) | known) if rnd else None
+                where = (search[..., None] & (cand | known)) if rnd else None  # the frames moved since the last look
                 reach = NEAR_M if rnd else NEAR_M + c.al_search
-                d = pair_depths(model, pos, rot, margin=c.self_margin + reach, which=SELF_POINTS, where=where) + c.self_margin
-                if not rnd:  # the later rounds look only at the (frame, pair) entries within al_search of active now
+                d = pair_depths(model, pos, rot, margin=c.self_margin + reach, which=SELF_POINTS, where=where, exact=c.self_margin + NEAR_M) + c.self_margin
+                if rnd:  # the known entries of frames not moved since: as last measured
+                    d = torch.where(search[..., None], d, torch.where(known, dc, torch.full_like(dc, float("-inf"))))
+                else:  # the later rounds look only at the (frame, pair) entries within al_search of active now
                     cand = d > -(NEAR_M + c.al_search)
                 known |= d > -NEAR_M
                 search = torch.zeros_like(search)  # the frames moved since this look
+            dc = d
         if rnd:  # multiplier updates
-            s_floor = (s_floor - low).clamp_min(0)
-            s_self = torch.where(known, (s_self + d).clamp_min(0), torch.zeros_like(s_self))
-            s_z = (s_z + up).clamp_min(0) * down
+            k = c.al_step
+            s_floor = (s_floor - k * low).clamp_min(0)
+            s_self = torch.where(known, (s_self + k * d).clamp_min(0), torch.zeros_like(s_self))
+            s_z = (s_z + k * up).clamp_min(0) * down
         viol = torch.stack([(-low).amax(-1), d.amax(-1) if Kp else q.new_zeros(B, T), up.amax(-1), slide], -1)
         worst = viol.clamp_min(0).amax((1, 2))
         if rnd == c.al_rounds or not bool((viol[..., :3] > TOLERANCE_M).any()):  # the constraints met (sliding is a penalty)
@@ -244,26 +253,31 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
             if slip is not None:
                 active |= contacts.any(-1)
         free = widen(active[..., None], c.al_reach)[..., 0] if c.al_reach >= 0 else torch.ones_like(active)
-        entries, slots, s_slot = _entries(known, pairs, s_self)
+        segs = _segments(free, c.al_gap)
+        if not segs:  # nothing moves: every later round the same
+            break
+        idx, groups = _frames(segs, T, dev)
+        moved = torch.ones(T, dtype=torch.bool, device=dev) if idx is None else torch.zeros(T, dtype=torch.bool, device=dev).index_fill(0, idx, True)
+        entries, slots, s_slot = _entries(known & moved[None, :, None], pairs, s_self)  # the solve's frames' entries
         al = {"floor": s_floor, "entries": entries, "slots": slots, "self": s_slot, "stance_z": s_z, "anchor": [None, None], "slip": slip}
         faces = None
         if entries is not None and c.fixed_faces:  # the self rows along faces chosen now (.faces)
             faces = al["faces"] = fix_faces(model, pos, rot, entries, slots, SELF_POINTS, exact_over=c.face_exact)
-            faces["pair"] = known.nonzero(as_tuple=True)[2]
+            faces["pair"] = (known & moved[None, :, None]).nonzero(as_tuple=True)[2]
         terms = dataclasses.replace(physics, cfg=terms_cfg, al=al, pairs=None, pair_mask=None)
-        segs = _segments(free, c.al_gap)
-        if segs:  # every run of free frames, with a held frame at each end, in one solve
-            idx, groups = _frames(segs, T, dev)
-            sub = _window(idx, goal=goal, q=q, base_pos=base_pos, base_rot=base_rot, plain=plain, hold=~free, goal_rot=goal_rot)
-            qs, ps, rs = coupled_lm_ik(cfg, graph, eta, sub["goal"], sub["q"], sub["base_pos"], sub["base_rot"], iters=c.al_iters, smooth=smooth, tol=tol,
-                                       change_of=sub["plain"], change_smooth=smooth * c.al_smooth, physics=_window_terms(terms, idx),
-                                       hold=sub["hold"], goal_rot=sub["goal_rot"], rot_mask=rot_mask, groups=groups)  # fmt: skip
-            if idx is None:
-                q, base_pos, base_rot = qs, ps, rs
-            else:
-                q, base_pos, base_rot = q.clone(), base_pos.clone(), base_rot.clone()
-                q[:, idx], base_pos[:, idx], base_rot[:, idx] = qs, ps, rs
-        pos, rot = batch_fk(graph, q, base_pos, base_rot)
+        # every run of free frames, with a held frame at each end, in one solve
+        sub = _window(idx, goal=goal, q=q, base_pos=base_pos, base_rot=base_rot, plain=plain, hold=~free, goal_rot=goal_rot)
+        qs, ps, rs = coupled_lm_ik(cfg, graph, eta, sub["goal"], sub["q"], sub["base_pos"], sub["base_rot"], iters=c.al_iters, smooth=smooth, tol=tol,
+                                   change_of=sub["plain"], change_smooth=smooth * c.al_smooth, physics=_window_terms(terms, idx),
+                                   hold=sub["hold"], goal_rot=sub["goal_rot"], rot_mask=rot_mask, groups=groups)  # fmt: skip
+        if idx is None:
+            q, base_pos, base_rot = qs, ps, rs
+            pos, rot = batch_fk(graph, q, base_pos, base_rot)
+        else:
+            q, base_pos, base_rot = q.clone(), base_pos.clone(), base_rot.clone()
+            q[:, idx], base_pos[:, idx], base_rot[:, idx] = qs, ps, rs
+            pn, rn = batch_fk(graph, qs, ps, rs)
+            pos, rot = pos.index_copy(1, idx, pn), rot.index_copy(1, idx, rn)
         search, rounds = search | free, rnd + 1
     if stats is not None:
         stats["rounds"], stats["violation"] = rounds, worst

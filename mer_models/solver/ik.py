@@ -439,16 +439,13 @@ def coupled_lm_ik(
                     c_speed = torch.cat([off, P.zeros(B, T - 1, 6)], -1)
                 dense = phys.coupled_terms(pos, rot, state)  # two-frame rows with dense blocks (a stance foot's no-slip)
                 if dense is not None:
-                    h, g = h + dense[0], g + dense[2]
-                    dense = dense[1]
+                    h, g, dense = h + dense[0], g + dense[2], dense[1]
             same = (h.clone(), g, c_speed, dense, state)
         # active set: a joint at a limit that the gradient pushes further out stays where it is
         gq = g[..., :D]
         fixed = ((qd <= P.lower) & (gq > 0)) | ((qd >= P.upper) & (gq < 0))  # (B, T, D)
         free = torch.cat([~fixed, torch.ones(B, T, 6, dtype=torch.bool, device=P.dev)], -1)
-        if hold is not None:
-            free = free & ~hold.to(P.dev)[..., None]
-        free = free.to(P.dtype)
+        free = (free if hold is None else free & ~hold.to(P.dev)[..., None]).to(P.dtype)
         h = h.mul_(free[..., :, None]).mul_(free[..., None, :])
         h.diagonal(dim1=-2, dim2=-1).add_(1 - free)
         g = g * free
@@ -468,19 +465,15 @@ def coupled_lm_ik(
         o2, o3 = o1[..., None], o1[..., None, None]
         qd, base_pos, base_rot = torch.where(o1, qd_c, qd), torch.where(o1, bp_c, base_pos), torch.where(o2, br_c, base_rot)
         pos, kp, rot = torch.where(o2, pos_c, pos), torch.where(o2, kp_c, kp), torch.where(o3, rot_c, rot)
-        cost = torch.where(o1[..., 0], cost_c, cost)
-        fit = torch.where(o1[..., 0], fit_c, fit)
-        if P.M:
-            ocols = torch.where(o2, ocols_c, ocols)
+        cost, fit = torch.where(o1[..., 0], cost_c, cost), torch.where(o1[..., 0], fit_c, fit)
+        ocols = torch.where(o2, ocols_c, ocols) if P.M else ocols
         mu = torch.where(active, torch.where(ok, mu / 3, mu * 4).clamp(1e-7, 1e6), mu)
         done = it + 1
         change = torch.where(ok, (total - total_c) / total.clamp_min(1e-12), torch.zeros_like(total))
         active = active & ~(ok & (change < tol))
-        if bool(ok.any()):
-            same = None
+        same = None if bool(ok.any()) else same
         if not bool(active.any()):
             break
     if stats is not None:
-        stats["iterations"] = done
-        stats["cost"] = cost
+        stats["iterations"], stats["cost"] = done, cost
     return P.full_q(qd), base_pos, base_rot

@@ -94,6 +94,7 @@ class PhysicsConfig:
     al_search: float = 0.03  # constraints: after the first round, pairs are looked for only among the entries this much [m] farther than active at its start
     al_focus: int = 2  # constraints: from this round on only frames near a constraint not yet met move (-1: never)
     al_gap: int = 8  # constraints: runs of such frames closer than this are solved together
+    al_step: float = 1.0  # constraints: the multiplier update's step, times the violation (1: the augmented Lagrangian's)
     al_look: int = 2  # constraints: pairs looked for anew every this many rounds (and before the rounds stop; 0: only then)
     fixed_faces: bool = True
     face_exact: float = 0.0  # constraints: entries overlapping deeper than this [m] at a round's start keep the exact separating-axis depth  # constraints: a round's self rows along the separating faces chosen at its start (.faces)

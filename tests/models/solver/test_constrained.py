@@ -242,3 +242,84 @@ def test_face_points_reuse_the_last_two_poses_and_only_those():
     assert all(torch.equal(a, b) for a, b in zip(fresh, second)) and not torch.equal(first[0], second[0])
     third = face_points(model, *batch_fk(P.graph, q - 0.05, base_pos, base_rot), faces)  # the first pose is now forgotten
     assert not any(a is b for a, b in zip(face_points(model, pos, rot, faces), first)) and third is not None
+
+
+def test_a_refused_step_reuses_its_linearisation(monkeypatch):
+    """``coupled_lm_ik``: after a step no group accepts, the iterate is the same, so the next iteration
+    solves the same system (only the damping grows): the Jacobian is built once for both. H1 far from
+    its goals with almost no damping, so the first full Gauss-Newton steps overshoot and are refused."""
+    import dataclasses
+
+    from test_physics import TrainingSample, collate, graph_from_batch, joint_map
+
+    from mer_models.batch import batch_fk
+    from mer_models.config import EnergyConfig
+    from mer_models.solver import ik
+
+    r, _, q = _problem("h1", 8, 4)
+    s = r.skeleton
+    eta = torch.from_numpy(joint_map(s, s))[None].double()
+    g = graph_from_batch(collate([TrainingSample(np.zeros((3, s.num_nodes, 9), np.float32), s, s, joint_map(s, s))]), "tgt", "cpu")
+    g = dataclasses.replace(g, **{f.name: getattr(g, f.name).double() for f in dataclasses.fields(g) if getattr(g, f.name).is_floating_point()})
+    base_pos = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(1, 8, 3).clone()
+    base_rot = torch.eye(3, dtype=torch.float64).expand(1, 8, 3, 3).clone()
+    goal = batch_fk(g, q, base_pos, base_rot)[0]
+    start = q + 1.5 * torch.sin(torch.arange(s.num_nodes, dtype=torch.float64))
+    start = torch.minimum(torch.maximum(start, torch.from_numpy(s.lower.copy())), torch.from_numpy(s.upper.copy()))
+    calls = []
+    real = ik._Problem.linearise
+    monkeypatch.setattr(ik._Problem, "linearise", lambda self, *a: calls.append(1) or real(self, *a))
+    stats: dict = {}
+    out = ik.coupled_lm_ik(EnergyConfig(), g, eta, goal, start, base_pos, base_rot, iters=12, damping=1e-7, tol=0.0, stats=stats)
+    assert stats["iterations"] == 12 and len(calls) < 12  # some steps refused, their systems not built again
+    assert float((batch_fk(g, out[0], *out[1:])[0] - goal).norm(dim=-1).mean()) < float((batch_fk(g, start, base_pos, base_rot)[0] - goal).norm(dim=-1).mean())
+
+
+def test_pair_depths_exact_near_contact_and_a_bound_beyond():
+    """:func:`pair_depths` (separating-axis depth) on TALOS in random poses: every entry within the margin
+    is each pair's separating-axis depth (:func:`contact_points`, both ways), the cheaper face bounds
+    notwithstanding; with ``exact``, the entries within it still are, the rest up to the margin keep a
+    bound: never below the exact depth, so "within the margin" finds every entry that is."""
+    from mer_data.kinematics.collision import contact_points, pair_depths
+
+    P, model, q, base_pos, base_rot, pos, rot = _talos_posed(8)
+    pairs = torch.as_tensor(model.pairs)
+    margin, near = 0.04, 0.007
+    full = pair_depths(model, pos, rot, margin=margin, which="sat")  # (1, T, K)
+    bound = pair_depths(model, pos, rot, margin=margin, which="sat", exact=near)
+    bi, ti, ki = (full > -margin).nonzero(as_tuple=True)
+    assert len(bi) > 50 and bool((full[bi, ti, ki] > 0).any())
+    sat = contact_points(model, pos, rot, (bi, ti, ki, pairs[ki, 0], pairs[ki, 1]), len(pairs), "sat")[0][bi, ti, ki]
+    torch.testing.assert_close(full[bi, ti, ki], sat, atol=1e-9, rtol=0)
+    close = full > -near
+    torch.testing.assert_close(bound[close], full[close], atol=0, rtol=0)
+    assert bool((bound >= full - 1e-12).all()) and bool(((bound > -margin) >= (full > -margin)).all())
+    assert bool((bound[~close & (full > -margin)] > full[~close & (full > -margin)] + 1e-4).any())  # a bound, not the depth
+
+
+def test_a_round_measures_again_only_the_frames_its_solve_moved(monkeypatch):
+    """The constraint rounds: frames the last round's solve did not take (held away from every unmet
+    constraint) keep their measures; H1 standing on the floor, 6 of 60 frames' goals 3 cm under it,
+    rounds on unmet constraints only from the first (``al_focus=0``): after the first round's measure
+    of every frame, only the few frames near the dip are measured again, and the dip is taken out."""
+    from mer_data.kinematics.collision import shape_points
+    from mer_data.motion.features import source_features
+    from mer_data.robots.registry import load_robot
+    from mer_models.retarget.clip import retarget_features, sequence_metrics
+    from mer_models.solver import constrained
+
+    r = load_robot("h1")
+    s, geom = r.skeleton, collision_model(r)
+    J = s.num_nodes
+    low = float(shape_points(geom, torch.from_numpy(s.rest_positions), torch.eye(3, dtype=torch.float64).expand(J, 3, 3))[..., 2].min())
+    base = np.zeros((60, 3))
+    base[:, 2] = -low
+    base[27:33, 2] -= 0.03  # 6 frames 3 cm down
+    feats = source_features(base, np.tile([1.0, 0, 0, 0], (60, 1)), np.zeros((60, J)), s, 30.0)
+    seen = []
+    real = constrained.lowest_points
+    monkeypatch.setattr(constrained, "lowest_points", lambda m, p, rr: seen.append(p.shape[1]) or real(m, p, rr))
+    res = retarget_features(feats, s, s, method="optimize", fps=30.0, physics=PhysicsConfig(method="constraints", al_focus=0, al_lift=False))
+    assert seen[:2] == [60, 60] and len(seen) > 2 and max(seen[2:]) < 30, seen  # the lift's look, round 0, then the moved frames
+    m = sequence_metrics(feats, s, res.motion, prepared=res.prepared, geometry=geom)
+    assert m["body_floor_frames"] == 0.0
