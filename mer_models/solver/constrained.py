@@ -24,7 +24,9 @@ constraint not yet met, and each run of the frames that move is solved as on its
 the runs side by side in one call, each its own damping and step test: :func:`_frames`).
 Within a round a self row is the overlap along the separating face chosen at its start
 (:mod:`.faces`), and pairs are looked for again (among those within ``al_search`` at the first
-round) only before the rounds would stop. The base
+round) only before the rounds would stop. Frames a round's solve did not take keep their
+measures (lowest points, self depths) into the next round; the first search is exact only near
+contact (the rest of its candidates keep a bound). The base
 is first raised where a foot is in the floor (a start the floor's linearisation holds from). Joint
 limits are the solver's projection; joint speed is the solver's coupled term and the feasibility
 pass after (:mod:`mer_models.retarget.feasible`) takes the rest exactly. What each choice measured:
@@ -71,6 +73,23 @@ def _slide(model: Any, pos: torch.Tensor, rot: torch.Tensor, shape: torch.Tensor
     pa = torch.einsum("btfij,btfj->btfi", rot[bi, ti, node], local) + pos[bi, ti, node]
     pb = torch.einsum("btfij,btfj->btfi", rot[bi, ti + 1, node], local) + pos[bi, ti + 1, node]
     return ((pb - pa)[..., :2].norm(dim=-1) * mask).amax(-1)
+
+
+def _lows(model: Any, pos: torch.Tensor, rot: torch.Tensor, shift: torch.Tensor, keep: torch.Tensor) -> torch.Tensor:
+    """(B, T, S) each shape's lowest vertex height [m] at node poses ``pos``, ``rot`` where its bounding
+    sphere reaches down to its floor shift ``shift`` (B, T, S) [m] (>= 0) or ``keep`` (S,) bool (the feet);
+    elsewhere the sphere's bottom, a lower bound above the shift, where the multiplier update
+    (``max(0, shift - low)``) and the violation (``-low``, < 0) come out as from the vertices."""
+    node = torch.as_tensor(model.node, device=pos.device)
+    centre = torch.as_tensor(model.center, dtype=pos.dtype, device=pos.device)
+    radius = torch.as_tensor(model.radius, dtype=pos.dtype, device=pos.device)
+    low = (rot[..., node, 2, :] * centre).sum(-1) + pos[..., node, 2] - radius  # (B, T, S)
+    bi, ti, si = ((low <= shift) | keep).nonzero(as_tuple=True)
+    if len(bi):
+        verts = torch.as_tensor(model.vertices, dtype=pos.dtype, device=pos.device)[si]  # (E, V, 3)
+        z = (verts @ rot[bi, ti, node[si], 2, :, None])[..., 0] + pos[bi, ti, node[si], 2, None]
+        low = low.index_put((bi, ti, si), z.amin(-1))
+    return low
 
 
 def _entries(known: torch.Tensor, pairs: torch.Tensor, shift: torch.Tensor):
@@ -202,12 +221,13 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
     faces, cand = None, None  # cand: the (frame, pair) entries the later rounds look at, set by round 0
     moved = torch.ones(T, dtype=torch.bool, device=dev)  # the frames the last round's solve took (the rest: measured before, unchanged)
     low = q.new_zeros(B, T, S)
+    is_foot = torch.zeros(S, dtype=torch.bool, device=dev).index_fill(0, sole, True) if any(len(f) for f in feet) else torch.zeros(S, dtype=torch.bool, device=dev)
     dc = q.new_full((B, T, Kp), float("-inf"))  # each entry's last measure (+ self_margin)
     for rnd in range(c.al_rounds + 1):
         if rnd == c.al_rounds and stats is None:  # the last round's measures only fill stats: nothing moves after it
             break
         m = None if bool(moved.all()) else moved.nonzero().flatten()
-        low = lowest_points(model, pos, rot)[0] if m is None else low.index_copy(1, m, lowest_points(model, pos[:, m], rot[:, m])[0])  # (B, T, S)
+        low = _lows(model, pos, rot, s_floor, is_foot) if m is None else low.index_copy(1, m, _lows(model, pos[:, m], rot[:, m], s_floor[:, m], is_foot))  # (B, T, S)
         foot_z = torch.stack([low[..., f].amin(-1) if len(f) else low.new_full((B, T), float("inf")) for f in feet], -1)
         up = (foot_z - c.hover) * down  # (B, T, 2) > 0: hovering
         slip, slide = None, q.new_zeros(B, T)

@@ -317,9 +317,30 @@ def test_a_round_measures_again_only_the_frames_its_solve_moved(monkeypatch):
     base[27:33, 2] -= 0.03  # 6 frames 3 cm down
     feats = source_features(base, np.tile([1.0, 0, 0, 0], (60, 1)), np.zeros((60, J)), s, 30.0)
     seen = []
-    real = constrained.lowest_points
-    monkeypatch.setattr(constrained, "lowest_points", lambda m, p, rr: seen.append(p.shape[1]) or real(m, p, rr))
+    real = constrained._lows
+    monkeypatch.setattr(constrained, "_lows", lambda m, p, *a: seen.append(p.shape[1]) or real(m, p, *a))
     res = retarget_features(feats, s, s, method="optimize", fps=30.0, physics=PhysicsConfig(method="constraints", al_focus=0, al_lift=False))
-    assert seen[:2] == [60, 60] and len(seen) > 2 and max(seen[2:]) < 30, seen  # the lift's look, round 0, then the moved frames
+    assert seen[0] == 60 and len(seen) > 1 and max(seen[1:]) < 30, seen  # round 0, then the moved frames
     m = sequence_metrics(feats, s, res.motion, prepared=res.prepared, geometry=geom)
     assert m["body_floor_frames"] == 0.0
+
+
+def test_round_lows_exact_where_the_floor_shift_reaches_and_a_bound_above():
+    """``constrained._lows`` on TALOS in random poses, half a metre up or down: each shape's lowest
+    vertex exactly (as :func:`lowest_points`) where its bounding sphere reaches down to its floor shift
+    or the shape is a foot; elsewhere a lower bound still above the shift, so the multiplier update and
+    the floor violation come out the same."""
+    from mer_data.kinematics.collision import lowest_points
+    from mer_models.solver.constrained import _lows
+
+    P, model, q, base_pos, base_rot, pos, rot = _talos_posed(6)
+    pos = pos + torch.tensor([0.0, 0.0, 0.5]) * torch.tensor([1.0, -1.0, 0.3, 0.8, 1.1, 0.6], dtype=torch.float64)[None, :, None, None]
+    exact = lowest_points(model, pos, rot)[0]
+    shift = torch.rand(exact.shape, generator=torch.Generator().manual_seed(2), dtype=torch.float64) * 0.3
+    foot = torch.as_tensor(model.foot) > 0
+    low = _lows(model, pos, rot, shift, foot)
+    same = (low <= shift) | foot
+    assert bool(same.any()) and not bool(same.all())
+    torch.testing.assert_close(low[same], exact[same], atol=1e-12, rtol=0)
+    assert bool((low[~same] <= exact[~same] + 1e-12).all()) and bool((low[~same] > shift[~same]).all())
+    torch.testing.assert_close((shift - low).clamp_min(0), (shift - exact).clamp_min(0), atol=1e-12, rtol=0)
