@@ -383,7 +383,7 @@ class Physics:
             has = 0.0 if two else 1.0
             if two:
                 m = m - self.moves[b, n[..., 1][act]]
-            jq = torch.einsum("ej,ejd->ed", dq * m, self.fold[b])
+            jq = (dq * m) @ self.fold[0] if self.fold.shape[0] == 1 else torch.einsum("ej,ejd->ed", dq * m, self.fold[b])  # one robot: no (E, J, D) gather
             jr = torch.linalg.cross(pe - base[f], ue, dim=-1) * has
             jrow = torch.cat([jq, ue * has, jr], -1) * we[:, None]  # (E, n), weighted like its residual
             h.index_add_(0, f, jrow[:, :, None] * jrow[:, None, :])
