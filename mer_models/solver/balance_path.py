@@ -13,10 +13,15 @@ The two-stage balance (:class:`~.balance_term.BalanceConfig` ``method="path"``, 
    2 cm of the floor) and, in flight frames, the horizontal acceleration to 0 (ballistic): a banded
    least-squares problem in ``2 T`` unknowns with the polygons' rows as an active set of penalties
    (:func:`path_correction`; sparse, milliseconds for hundreds of frames).
-2. **The whole-body solve tracks it** (:func:`shift_goals`): every key-point goal moves by the
-   correction, scaled per node by how far up the leg it is (feet 0, the hips and everything above 1), so
-   the body above the hips moves rigidly, the feet stay where they were and the legs take up the
-   difference; a few whole-window Levenberg-Marquardt iterations from the motion with its base moved.
+   **A vertical correction** ``dz`` (T,) [m] of the whole body, feet included (:func:`vertical_correction`):
+   a flight phase (no collision vertex within 2 cm of the floor) whose lowest point stays under
+   ``hover`` is a foot held a few millimetres too high and is put down; any other is a jump, made
+   ballistic (``f_z = 0``, the filtered vertical acceleration ``-g``); contact frames stay on the floor.
+2. **The whole-body solve tracks it**: every key-point goal moves by the horizontal correction, scaled
+   per node by how far up the leg it is (feet 0, the hips and everything above 1), so the body above the
+   hips moves rigidly, the feet stay where they were and the legs take up the difference, and by the
+   vertical correction whole; a few whole-window Levenberg-Marquardt iterations from the motion with its
+   base moved.
 
 The centre of mass moves less than the base (the legs stay behind): each round measures the ZMP of the
 solved motion again and corrects what is left.
@@ -141,10 +146,13 @@ def path_correction(zmp: np.ndarray, com_z: np.ndarray, fz: np.ndarray, polys: l
     return np.stack([x[:T], x[T:]], -1)
 
 
-def flight_phases(flight: np.ndarray, low: np.ndarray, hover: float) -> tuple[np.ndarray, np.ndarray]:
-    """Split the flight frames (T,) bool into **hovers** (every frame of a maximal run of flight frames has
-    its lowest collision vertex ``low`` (T,) [m] below ``hover``: a foot held a few millimetres too high,
-    put down by :func:`vertical_correction`) and **jumps** (the rest: made ballistic). Returns both (T,) bool."""
+def flight_phases(flight: np.ndarray, low: np.ndarray, hover: float, fz: np.ndarray | None = None,
+                  held: float = 0.5) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Split the flight frames (T,) bool into **hovers** (a maximal run of flight frames whose lowest collision
+    vertex ``low`` (T,) [m] stays below ``hover`` and, given ``fz`` (T,) [m/s^2] (``f_z / M``), whose body is
+    held up rather than falling: mean ``f_z / M`` over ``held g``; a foot held a few centimetres too high,
+    put down by :func:`vertical_correction`) and **jumps** (the rest, a run's short flights among them:
+    made ballistic). Returns both (T,) bool."""
     hov = np.zeros(len(flight), bool)
     t = 0
     while t < len(flight):
@@ -154,7 +162,7 @@ def flight_phases(flight: np.ndarray, low: np.ndarray, hover: float) -> tuple[np
         e = t
         while e < len(flight) and flight[e]:
             e += 1
-        hov[t:e] = low[t:e].max() < hover
+        hov[t:e] = low[t:e].max() < hover and (fz is None or fz[t:e].mean() > held * GRAVITY)
         t = e
     return flight & hov, flight & ~hov
 
@@ -309,7 +317,7 @@ def solve_path(inputs, cfg, graph, eta, goal, q, base_pos, base_rot, *, smooth: 
                                  flight_weight=c.flight_weight, prior=prior)  # fmt: skip
             step[b, :, :2] = torch.as_tensor(dc / gain[b], dtype=goal.dtype, device=goal.device)
             if c.hover is not None:  # the whole body moved vertically: jumps ballistic, hovering feet put down
-                hov, jump = flight_phases(flight, low, c.hover)
+                hov, jump = flight_phases(flight, low, c.hover, fz)
                 contact = np.asarray([p is not None for p in polys])
                 dz = vertical_correction(low, fz, contact, hov, jump, float(np.mean(cz)), inputs.fps, top=c.top, smooth=c.path_smooth,
                                          flight_weight=c.flight_weight, prior=total[b, :, 2].double().cpu().numpy())  # fmt: skip

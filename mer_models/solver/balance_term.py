@@ -2,8 +2,9 @@
 
 Two methods (:attr:`BalanceConfig.method`). **``path``** (the default, :mod:`.balance_path`): each round
 corrects the centre of mass's horizontal path over the whole window by a banded least-squares problem
-(the ZMP of the metric, linear in that path, held in the support polygon, flight frames ballistic), moves
-every key-point goal above the feet with it and runs ``iters`` whole-window Levenberg-Marquardt iterations
+(the ZMP of the metric, linear in that path, held in the support polygon, flight frames ballistic) and
+the whole body's height (hovering feet put down, jumps ballistic), moves every key-point goal above the
+feet with the first and every goal with the second and runs ``iters`` whole-window Levenberg-Marquardt iterations
 (with the solve's physical terms, the floor and joint speed ``physics_gain`` x harder): it moves the base's
 horizontal path and the body above the legs, the legs taking up the difference. **``rows``** (the first
 attempt, kept for comparison; docs/decisions.md §The balance term), below:
@@ -92,7 +93,7 @@ class BalanceConfig:
     margin: float = 0.01
     path_smooth: float = 0.1
     physics_gain: float = 10.0
-    hover: float | None = 0.03
+    hover: float | None = 0.05
     top: float = 0.012
 
     def __post_init__(self) -> None:

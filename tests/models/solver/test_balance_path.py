@@ -107,14 +107,16 @@ def test_a_jump_is_made_ballistic_and_the_contacts_stay_on_the_floor():
 
 
 def test_a_hover_is_put_down():
-    """Flight frames whose lowest point stays 2.5 cm up (a foot held just above the metric's 2 cm): a hover,
-    lowered to ``top``; a hop elsewhere that reaches 6 cm is a jump, not lowered to the floor."""
+    """Flight frames whose lowest point stays 2.5 cm up with the body held (a foot held just above the metric's
+    2 cm): a hover, lowered to ``top``; a hop elsewhere that reaches 6 cm is a jump, not lowered to the floor;
+    so is the low flight where the body falls (a run's short flight)."""
     T = 60
     t = np.arange(T)
     flight = ((t >= 10) & (t < 20)) | ((t >= 40) & (t < 46))
     low = np.where((t >= 10) & (t < 20), 0.025, 0.0) + np.where((t >= 40) & (t < 46), 0.06, 0.0)
-    hover, jump = flight_phases(flight, low, 0.03)
+    hover, jump = flight_phases(flight, low, 0.03, np.full(T, dyn.GRAVITY))
     assert (hover == ((t >= 10) & (t < 20))).all() and (jump == ((t >= 40) & (t < 46))).all()
+    assert not flight_phases(flight, low, 0.03, np.full(T, 2.0))[0].any()  # falling at 7.8 m/s^2: a jump
     dz = vertical_correction(low, np.full(T, dyn.GRAVITY), ~flight, hover, np.zeros(T, bool), 0.7, FPS, top=0.012)
     lo = low + dz
     assert lo[hover].max() < 0.012 + 1e-3 and lo.min() > -1e-3, lo
