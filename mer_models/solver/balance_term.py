@@ -92,7 +92,7 @@ class BalanceConfig:
     method: str = "path"
     margin: float = 0.01
     path_smooth: float = 0.1
-    physics_gain: float = 10.0
+    physics_gain: float = 3.0
     hover: float | None = 0.05
     top: float = 0.012
 
