@@ -13,10 +13,15 @@ The two-stage balance (:class:`~.balance_term.BalanceConfig` ``method="path"``, 
    2 cm of the floor) and, in flight frames, the horizontal acceleration to 0 (ballistic): a banded
    least-squares problem in ``2 T`` unknowns with the polygons' rows as an active set of penalties
    (:func:`path_correction`; sparse, milliseconds for hundreds of frames).
-2. **The whole-body solve tracks it** (:func:`shift_goals`): every key-point goal moves by the
-   correction, scaled per node by how far up the leg it is (feet 0, the hips and everything above 1), so
-   the body above the hips moves rigidly, the feet stay where they were and the legs take up the
-   difference; a few whole-window Levenberg-Marquardt iterations from the motion with its base moved.
+   **A vertical correction** ``dz`` (T,) [m] of the whole body, feet included (:func:`vertical_correction`):
+   a flight phase (no collision vertex within 2 cm of the floor) whose lowest point stays under
+   ``hover`` is a foot held a few millimetres too high and is put down; any other is a jump, made
+   ballistic (``f_z = 0``, the filtered vertical acceleration ``-g``); contact frames stay on the floor.
+2. **The whole-body solve tracks it**: every key-point goal moves by the horizontal correction, scaled
+   per node by how far up the leg it is (feet 0, the hips and everything above 1), so the body above the
+   hips moves rigidly, the feet stay where they were and the legs take up the difference, and by the
+   vertical correction whole; a few whole-window Levenberg-Marquardt iterations from the motion with its
+   base moved.
 
 The centre of mass moves less than the base (the legs stay behind): each round measures the ZMP of the
 solved motion again and corrects what is left.
@@ -33,7 +38,7 @@ from mer_data.kinematics.dynamics import BINOMIAL, GRAVITY
 
 log = logging.getLogger(__name__)
 
-__all__ = ["accel_operator", "polygon_rows", "path_correction", "leg_weights"]
+__all__ = ["accel_operator", "polygon_rows", "path_correction", "vertical_correction", "flight_phases", "leg_weights"]
 
 
 def accel_operator(T: int, fps: float):
@@ -141,6 +146,75 @@ def path_correction(zmp: np.ndarray, com_z: np.ndarray, fz: np.ndarray, polys: l
     return np.stack([x[:T], x[T:]], -1)
 
 
+def flight_phases(flight: np.ndarray, low: np.ndarray, hover: float, fz: np.ndarray | None = None,
+                  held: float = 0.5) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Split the flight frames (T,) bool into **hovers** (a maximal run of flight frames whose lowest collision
+    vertex ``low`` (T,) [m] stays below ``hover`` and, given ``fz`` (T,) [m/s^2] (``f_z / M``), whose body is
+    held up rather than falling: mean ``f_z / M`` over ``held g``; a foot held a few centimetres too high,
+    put down by :func:`vertical_correction`) and **jumps** (the rest, a run's short flights among them:
+    made ballistic). Returns both (T,) bool."""
+    hov = np.zeros(len(flight), bool)
+    t = 0
+    while t < len(flight):
+        if not flight[t]:
+            t += 1
+            continue
+        e = t
+        while e < len(flight) and flight[e]:
+            e += 1
+        hov[t:e] = low[t:e].max() < hover and (fz is None or fz[t:e].mean() > held * GRAVITY)
+        t = e
+    return flight & hov, flight & ~hov
+
+
+def vertical_correction(low: np.ndarray, fz: np.ndarray, contact: np.ndarray, hover: np.ndarray, jump: np.ndarray, com_z: float,
+                        fps: float, *, top: float, smooth: float = 0.1, flight_weight: float = 1.0, penalty: float = 1e4,
+                        iters: int = 30, prior: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
+    """The least vertical translation ``dz`` (T,) [m] of the whole body that makes every jump frame ballistic
+    and keeps (or puts) the lowest point of every contact (and hover) frame on the floor.
+
+    Least ``|dz|^2 + smooth |k A dz|^2 + flight_weight sum_jump |k (A dz + f_z / M)|^2`` (``k = c_z / g``: ZMP
+    units, as :func:`path_correction`; ``f_z / M = c_z'' + g`` filtered, 0 in free fall) with, as an active
+    set of penalties, ``low + dz <= top`` in contact and hover frames (the support's vertices stay within
+    the metric's 2 cm; a hover comes down to it) and ``low + dz >= min(low, 0)`` everywhere (nothing lower
+    than the floor, or than it already is).
+
+    Args:
+        low: (T,) the lowest collision vertex's height [m]; fz: (T,) the demanded vertical force per unit mass
+            [m/s^2]; contact, hover, jump: (T,) bool (:func:`flight_phases`); com_z: the centre of mass's mean
+            height [m]; top: the highest the lowest vertex of a contact frame may end [m]; prior: (T,) the
+            vertical correction earlier rounds made [m]: the least ``prior + dz`` is sought.
+    """
+    from scipy.sparse import csr_matrix, identity, vstack
+    from scipy.sparse.linalg import spsolve
+
+    T = len(low)
+    A = accel_operator(T, fps)
+    k = com_z / GRAVITY
+    R = identity(T, format="csr") + smooth * k**2 * (A.T @ A)  # the size and smoothness of prior + dz
+    Q = R
+    rhs = -(R @ prior) if prior is not None else np.zeros(T)
+    j = np.flatnonzero(jump)
+    if len(j) and flight_weight > 0:
+        Q = Q + flight_weight * k**2 * (A[j].T @ A[j])
+        rhs -= flight_weight * k**2 * (A[j].T @ fz[j])
+    # rows g . dz + b <= 0: the lowest vertex under ``top`` where the floor supports, over the floor everywhere
+    up = np.flatnonzero(contact | hover)
+    eye = identity(T, format="csr")
+    G = csr_matrix(vstack([eye[up], -eye]))
+    b = np.concatenate([low[up] - top, -(low - np.minimum(low, 0.0))])
+    x = spsolve(Q.tocsc(), rhs)
+    active = np.zeros(len(b), bool)
+    for _ in range(iters):
+        viol = G @ x + b > 0
+        if np.array_equal(viol, active):
+            break
+        active = viol
+        Ga = G[active]
+        x = spsolve((Q + penalty * (Ga.T @ Ga)).tocsc(), rhs - penalty * (Ga.T @ b[active]))
+    return x
+
+
 def leg_weights(parents: np.ndarray, foot_nodes: list[int], height: np.ndarray) -> np.ndarray:
     """(J,) how much of the correction each node's goal takes: 0 on a foot (and below it), 1 at the root and
     everything not on a leg, between them along each leg by height (``height`` (J,) of a standing pose [m])."""
@@ -179,7 +253,8 @@ def torch_weights(eta: torch.Tensor, node_w: torch.Tensor) -> torch.Tensor:
 
 def _frames(inputs, pos: torch.Tensor, rot: torch.Tensor):
     """One sample's ZMP (T, 2), centre-of-mass height (T,), ``f_z / M`` (T,), filtered horizontal acceleration
-    (T, 2), support polygons (per frame half-planes or None) and flight frames (T,) from node frames."""
+    (T, 2), support polygons (per frame half-planes or None), flight frames (T,) and the lowest collision
+    vertex's height (T,) [m] from node frames."""
     from mer_data.kinematics import dynamics as dyn
     from mer_data.kinematics.collision import shape_points
     from mer_data.kinematics.support import CONTACT_HEIGHT, support_kind
@@ -195,7 +270,7 @@ def _frames(inputs, pos: torch.Tensor, rot: torch.Tensor):
     valid[dyn.EDGE : T - dyn.EDGE] = True
     polys = [polygon_rows(verts[t][low[t]][:, :2]) if kind[t] > 0 and valid[t] else None for t in range(T)]
     f = d.force.numpy() / M
-    return zmp, d.com[:, 2].numpy(), f[:, 2], f[:, :2], polys, (kind == 0) & valid
+    return zmp, d.com[:, 2].numpy(), f[:, 2], f[:, :2], polys, (kind == 0) & valid, verts[..., 2].reshape(T, -1).min(-1)
 
 
 def solve_path(inputs, cfg, graph, eta, goal, q, base_pos, base_rot, *, smooth: float, tol: float, goal_rot=None, rot_mask=None,
@@ -233,7 +308,7 @@ def solve_path(inputs, cfg, graph, eta, goal, q, base_pos, base_rot, *, smooth: 
         pos, rot = batch_fk(graph, q, base_pos, base_rot)
         step = torch.zeros_like(total)
         for b in range(B):
-            zmp, cz, fz, acc, polys, flight = _frames(inputs, pos[b, :, :J].double().cpu(), rot[b, :, :J].double().cpu())
+            zmp, cz, fz, acc, polys, flight, low = _frames(inputs, pos[b, :, :J].double().cpu(), rot[b, :, :J].double().cpu())
             out = [float(np.max(n @ zmp[t] + d)) for t, (n, d) in ((t, p) for t, p in enumerate(polys) if p is not None)]
             log.debug("balance round %d, sample %d: %d of %d contact frames with the ZMP > 2 cm out (median %.3f m)", _, b,
                       int((np.asarray(out) > 0.02).sum()), len(out), float(np.median(out)) if out else 0.0)  # fmt: skip
@@ -241,9 +316,17 @@ def solve_path(inputs, cfg, graph, eta, goal, q, base_pos, base_rot, *, smooth: 
             dc = path_correction(zmp, cz, fz, polys, flight, acc, inputs.fps, margin=c.margin, smooth=c.path_smooth,
                                  flight_weight=c.flight_weight, prior=prior)  # fmt: skip
             step[b, :, :2] = torch.as_tensor(dc / gain[b], dtype=goal.dtype, device=goal.device)
+            if c.hover is not None:  # the whole body moved vertically: jumps ballistic, hovering feet put down
+                hov, jump = flight_phases(flight, low, c.hover, fz)
+                contact = np.asarray([p is not None for p in polys])
+                dz = vertical_correction(low, fz, contact, hov, jump, float(np.mean(cz)), inputs.fps, top=c.top, smooth=c.path_smooth,
+                                         flight_weight=c.flight_weight, prior=total[b, :, 2].double().cpu().numpy())  # fmt: skip
+                step[b, :, 2] = torch.as_tensor(dz, dtype=goal.dtype, device=goal.device)
         total = total + step
         base_pos = base_pos + step
-        moved = goal + goal_w[:, None, :, None] * total[:, :, None, :]
+        lift = torch.zeros_like(total)
+        lift[..., 2] = total[..., 2]  # every goal, the feet's too, moves with the vertical correction
+        moved = goal + goal_w[:, None, :, None] * (total - lift)[:, :, None, :] + lift[:, :, None, :]
         q, base_pos, base_rot = coupled_lm_ik(cfg, graph, eta, moved, q, base_pos, base_rot, iters=c.iters, smooth=smooth, tol=tol,
                                               physics=physics, **gkw)  # fmt: skip
     return q, base_pos, base_rot

@@ -2,8 +2,9 @@
 
 Two methods (:attr:`BalanceConfig.method`). **``path``** (the default, :mod:`.balance_path`): each round
 corrects the centre of mass's horizontal path over the whole window by a banded least-squares problem
-(the ZMP of the metric, linear in that path, held in the support polygon, flight frames ballistic), moves
-every key-point goal above the feet with it and runs ``iters`` whole-window Levenberg-Marquardt iterations
+(the ZMP of the metric, linear in that path, held in the support polygon, flight frames ballistic) and
+the whole body's height (hovering feet put down, jumps ballistic), moves every key-point goal above the
+feet with the first and every goal with the second and runs ``iters`` whole-window Levenberg-Marquardt iterations
 (with the solve's physical terms, the floor and joint speed ``physics_gain`` x harder): it moves the base's
 horizontal path and the body above the legs, the legs taking up the difference. **``rows``** (the first
 attempt, kept for comparison; docs/decisions.md §The balance term), below:
@@ -74,7 +75,10 @@ class BalanceConfig:
     temporal prior (``rows``). method: ``path`` or ``rows`` (module docstring); margin: how far inside the
     support polygon the path correction puts the ZMP [m]; path_smooth: the weight of the correction's
     filtered acceleration (in ZMP units, ``c_z / g`` times it) against its size; physics_gain: the
-    solve's floor and joint-speed terms this much harder in the ``path`` rounds (0: without the physical terms).
+    solve's floor and joint-speed terms this much harder in the ``path`` rounds (0: without the physical terms);
+    hover: the ``path`` rounds also move the whole body vertically (:func:`~.balance_path.vertical_correction`):
+    a flight phase whose lowest point stays below ``hover`` [m] is put down on the floor, any other made
+    ballistic (None: no vertical correction); top: how high [m] the lowest point of a contact frame may end.
     """
 
     weight: float = 30.0
@@ -88,7 +92,9 @@ class BalanceConfig:
     method: str = "path"
     margin: float = 0.01
     path_smooth: float = 0.1
-    physics_gain: float = 10.0
+    physics_gain: float = 3.0
+    hover: float | None = 0.05
+    top: float = 0.012
 
     def __post_init__(self) -> None:
         for k in ("weight", "hold_weight", "flight_weight", "tol", "change_smooth"):
@@ -98,6 +104,10 @@ class BalanceConfig:
             raise ValueError(f"BalanceConfig.down must be > 0 or None, got {self.down}")
         if self.method not in ("path", "rows"):
             raise ValueError(f"BalanceConfig.method must be 'path' or 'rows', got {self.method!r}")
+        if self.hover is not None and not self.hover > 0:
+            raise ValueError(f"BalanceConfig.hover must be > 0 or None, got {self.hover}")
+        if not 0 < self.top < 0.02:
+            raise ValueError(f"BalanceConfig.top must be in (0, 0.02) m (the support's 2 cm), got {self.top}")
         if self.rounds < 1 or self.iters < 1:
             raise ValueError(f"BalanceConfig.rounds and iters must be >= 1, got {self.rounds}, {self.iters}")
 

@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from mer_data.kinematics import dynamics as dyn
-from mer_models.solver.balance_path import accel_operator, path_correction, polygon_rows
+from mer_models.solver.balance_path import accel_operator, flight_phases, path_correction, polygon_rows, vertical_correction
 
 FPS = 30.0
 
@@ -84,3 +84,40 @@ def test_flight_frames_are_pulled_to_ballistic():
                          flight_weight=100.0)  # fmt: skip
     a = acc + accel_operator(T, FPS) @ dc
     assert np.abs(a[12:28, 0]).max() < 0.3, a[10:30, 0]
+
+
+def test_a_jump_is_made_ballistic_and_the_contacts_stay_on_the_floor():
+    """A 10-frame flight whose centre of mass stays level (the goals' jump: the feet lift, the body does not
+    fall): the vertical correction gives the flight's interior the metric's free fall (``f_z / M`` within its
+    2 m/s^2 of 0), and every contact frame's lowest point stays on the floor, not under it."""
+    T = 60
+    t = np.arange(T)
+    flight = (t >= 25) & (t < 35)
+    low = np.where(flight, 0.08 * np.sin(np.pi * (t - 24) / 11), 0.0)
+    fz = np.full(T, dyn.GRAVITY)  # level: c'' = 0, so the floor would carry the weight
+    hover, jump = flight_phases(flight, low, 0.03)
+    assert not hover.any() and (jump == flight).all()
+    dz = vertical_correction(low, fz, ~flight, hover, jump, 0.7, FPS, top=0.012, flight_weight=3.0)
+    a = fz + accel_operator(T, FPS) @ dz
+    assert np.abs(a[27:33]).max() < 2.0, a[25:35]
+    still = np.r_[a[:15], a[45:]] - dyn.GRAVITY  # far from the jump: standing still
+    assert np.abs(still).max() < 1.0
+    lo = low + dz
+    assert lo[~flight].min() > -1e-3 and lo[~flight].max() < 0.012 + 1e-3, lo[~flight]
+
+
+def test_a_hover_is_put_down():
+    """Flight frames whose lowest point stays 2.5 cm up with the body held (a foot held just above the metric's
+    2 cm): a hover, lowered to ``top``; a hop elsewhere that reaches 6 cm is a jump, not lowered to the floor;
+    so is the low flight where the body falls (a run's short flight)."""
+    T = 60
+    t = np.arange(T)
+    flight = ((t >= 10) & (t < 20)) | ((t >= 40) & (t < 46))
+    low = np.where((t >= 10) & (t < 20), 0.025, 0.0) + np.where((t >= 40) & (t < 46), 0.06, 0.0)
+    hover, jump = flight_phases(flight, low, 0.03, np.full(T, dyn.GRAVITY))
+    assert (hover == ((t >= 10) & (t < 20))).all() and (jump == ((t >= 40) & (t < 46))).all()
+    assert not flight_phases(flight, low, 0.03, np.full(T, 2.0))[0].any()  # falling at 7.8 m/s^2: a jump
+    dz = vertical_correction(low, np.full(T, dyn.GRAVITY), ~flight, hover, np.zeros(T, bool), 0.7, FPS, top=0.012)
+    lo = low + dz
+    assert lo[hover].max() < 0.012 + 1e-3 and lo.min() > -1e-3, lo
+    assert lo[40:46].min() > 0.03  # the hop (no ballistic rows here) stays in the air

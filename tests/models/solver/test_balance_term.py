@@ -4,6 +4,8 @@ cost (finite differences), and its rounds move a one-legged stance's ZMP into th
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import torch
 from test_physics import _problem
@@ -134,3 +136,34 @@ def test_a_solve_moves_the_zmp_into_the_stance_foot():
     foot = s.node_index("left_ankle_roll_joint")
     rows = slice(3, T - 3)  # the frames with rows (each reaches three frames either side)
     assert float((pos2[0, rows, foot] - pos[0, rows, foot]).norm(dim=-1).max()) < 0.01
+
+
+def test_a_hovering_stance_is_put_down():
+    """The one-legged stance with every goal 2.5 cm up (the sole just above the metric's 2 cm: every frame
+    reads flight, the weight held by nothing): the ``path`` rounds' vertical correction puts the sole back
+    on the floor (the metric reads contact, not flight), not under it; without it (``hover=None``) the
+    frames stay in flight."""
+    from mer_data.kinematics.collision import shape_points
+    from mer_data.kinematics.jointmap import joint_map
+    from mer_models.config import EnergyConfig
+    from mer_models.retarget.balance import balance_frames
+    from mer_models.solver.ik import DEFAULT_SMOOTH, DEFAULT_TOL
+
+    T = 15
+    r, P, q, base_pos, base_rot, geo = _one_legged(T)
+    base_pos[..., 2] += 0.025
+    s = r.skeleton
+    pos, rot, *_ = P.fit(P.columns(q), base_pos, base_rot)
+    eta = torch.from_numpy(joint_map(s, s))[None].float()
+    mm = mass_model(r)
+    J = len(mm.mass)
+    f32 = [x.float() for x in (pos, q, base_pos, base_rot)]
+    for cfg, flight in ((BalanceConfig(hover=None), True), (BalanceConfig(), False)):
+        inp = BalanceInputs.of_robot(r, dataclasses.replace(cfg, rounds=2), FPS, geometry=geo)
+        q2, bp2, br2 = (x.double() for x in inp.solve(EnergyConfig(), P.graph, eta, *f32, smooth=DEFAULT_SMOOTH, tol=DEFAULT_TOL))
+        p2, r2, *_ = P.fit(P.columns(q2), bp2, br2)
+        b = balance_frames(p2[0, :, :J].numpy(), r2[0, :, :J].numpy(), FPS, s, mm, geo, torques=False)
+        low = shape_points(geo, p2, r2, "vertices")[0, ..., 2].flatten(1).min(-1).values
+        inner = b["valid"]
+        assert bool(((b["support"][inner] == 0) == flight).all()), (cfg.hover, b["support"], low)
+        assert float(low.min()) > -0.005, low
