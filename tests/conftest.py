@@ -12,6 +12,17 @@ REPO = Path(__file__).resolve().parents[1]
 ROBOTS = ("g1", "h1", "h1_2", "atlas", "oli", "tron1", "talos", "valkyrie")
 
 
+def pytest_configure(config) -> None:
+    """Under ``pytest -n N`` (the README's test command) N worker processes share the cores: each runs
+    torch, and the subprocesses its tests start, on one thread (two threads each on two cores spin
+    against each other; the suite ran 1.2x faster with them, 1.7x with one)."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        os.environ["OMP_NUM_THREADS"] = "1"
+        import torch
+
+        torch.set_num_threads(1)
+
+
 def _shared() -> Path:
     return Path(os.environ.get("MER_SHARED", REPO.parent / "shared")).resolve()
 
