@@ -15,7 +15,7 @@ ROBOTS = ("g1", "h1", "h1_2", "atlas", "oli", "tron1", "talos", "valkyrie")
 def pytest_configure(config) -> None:
     """Under ``pytest -n N`` (the README's test command) N worker processes share the cores: each runs
     torch, and the subprocesses its tests start, on one thread (two threads each on two cores spin
-    against each other; the suite ran 1.2x faster with them, 1.7x with one)."""
+    against each other). On 2 cores the suite took 507 s in one process, 297 s in two workers."""
     if os.environ.get("PYTEST_XDIST_WORKER"):
         os.environ["OMP_NUM_THREADS"] = "1"
         import torch

@@ -52,6 +52,7 @@ ZMP_TOL = 0.02  # [m] a ZMP this far outside the support polygon is outside
 MU = 1.0  # friction coefficient
 FLIGHT_TOL = 2.0  # [m/s^2] a flight frame whose |c'' - g| exceeds this is off-ballistic
 _PYRAMID = 8  # edges of the friction pyramid
+_MASSLESS: set[str] = set()  # robots whose missing masses were logged
 _WRENCH_WEIGHT = 1e3  # the LP's price of the wrench residual against the torques' excess
 BALANCE_KEYS = (
     "balance_infeasible", "zmp_out", "zmp_out_single", "zmp_out_double", "zmp_out_dist", "pull_frames", "slip_frames",
@@ -180,7 +181,14 @@ def _torques(skel, masses, geometry, w, p, r, d, verts, low, valid) -> dict[str,
 def balance_metrics(pos: np.ndarray, rot: np.ndarray, fps: float, skel: Any, masses: Any, geometry: Any,
                     torques: bool = True) -> dict[str, Any]:  # fmt: skip
     """The summary (:data:`BALANCE_KEYS`, NaN where undefined; ``torque_worst`` the joint most
-    often over its limit, or None) of :func:`balance_frames`."""
+    often over its limit, or None) of :func:`balance_frames`. A description with no link masses (no
+    ``<inertial>``) demands no wrench: every figure is NaN, logged once per robot."""
+    if not masses.total_mass > 0:
+        if masses.robot not in _MASSLESS:
+            _MASSLESS.add(masses.robot)
+            log.warning("%s: its description gives no link masses, so the balance metrics are undefined (NaN); "
+                        "give its links <inertial> elements to measure them", masses.robot)  # fmt: skip
+        return {**{k: float("nan") for k in BALANCE_KEYS}, "torque_worst": None}
     b = balance_frames(pos, rot, fps, skel, masses, geometry, torques=torques)
     v = b["valid"]
 

@@ -116,3 +116,23 @@ def test_kinematic_lunge_reads_infeasible():
     shift = np.stack([np.zeros(F), 4.0 * np.sin(np.pi * t / t[-1]) * (t[-1] / np.pi) ** 2 * 2, np.zeros(F)], -1)
     out = balance_metrics(pos + shift[:, None], rot, FPS, r.skeleton, mass_model(r), collision_model(r), torques=False)
     assert out["zmp_out"] > 0.5 and out["balance_infeasible"] > 0.5
+
+
+def test_a_description_without_masses_reads_nan_with_one_warning(caplog):
+    """A robot whose links carry no ``<inertial>`` demands no wrench: every figure NaN, no division by
+    zero (the dataset summaries' RuntimeWarning before), one log line naming the robot and the fix."""
+    import dataclasses
+    import warnings
+
+    r = load_robot("g1")
+    mm = mass_model(r)
+    bare = dataclasses.replace(mm, robot="g1-bare", mass=np.zeros_like(mm.mass))
+    F = 12
+    q = torch.zeros(F, r.skeleton.num_nodes, dtype=torch.float64)
+    pos, rot = fk_skeleton(skeleton_tensors(r.skeleton, torch.float64), q, torch.tensor([[0.0, 0.0, 0.8]] * F, dtype=torch.float64),
+                           base_rot=torch.eye(3, dtype=torch.float64).expand(F, 3, 3))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        outs = [balance_metrics(pos.numpy(), rot.numpy(), FPS, r.skeleton, bare, collision_model(r)) for _ in range(2)]
+    assert all(np.isnan(v) for k, v in outs[0].items() if k != "torque_worst") and outs[0]["torque_worst"] is None
+    assert sum("g1-bare" in m and "<inertial>" in m for m in caplog.messages) == 1
