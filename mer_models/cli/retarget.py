@@ -119,7 +119,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--balance", action="store_true",
                    help="the optimiser (--method optimize, --refine) also keeps the zero-moment point in the support polygon "
                         "and flight ballistic, moving the base's horizontal path with the body above the legs (opt-in; "
-                        "about 3x slower; docs/model.md §Balance)")
+                        "2-9x slower, measured; docs/model.md §Balance)")
     p.set_defaults(func=cmd_retarget)
 
 

@@ -30,6 +30,7 @@ solved motion again and corrects what is left.
 from __future__ import annotations
 
 import logging
+from typing import Any
 
 import numpy as np
 import torch
@@ -98,7 +99,6 @@ def path_correction(zmp: np.ndarray, com_z: np.ndarray, fz: np.ndarray, polys: l
             prior: (T, 2) the correction earlier rounds made [m]: the least ``prior + dc`` is sought.
     """
     from scipy.sparse import bmat, csr_matrix, diags, identity
-    from scipy.sparse.linalg import spsolve
 
     T = len(zmp)
     A = accel_operator(T, fps)
@@ -131,19 +131,28 @@ def path_correction(zmp: np.ndarray, com_z: np.ndarray, fz: np.ndarray, polys: l
         ri, nx, ny, b = [0], [np.zeros(1)], [np.zeros(1)], [np.full(1, -1.0)]  # no polygon: no row ever active
     ri_a = np.asarray(ri)
     nx_a, ny_a, b_a = np.concatenate(nx), np.concatenate(ny), np.concatenate(b)
-    R = len(ri_a)
     Lr = L[ri_a]  # (R, T)
     G = csr_matrix(bmat([[diags(nx_a) @ Lr, diags(ny_a) @ Lr]]))  # (R, 2T)
+    x = _active_set(Q, rhs, G, b_a, penalty, iters)
+    return np.stack([x[:T], x[T:]], -1)
+
+
+def _active_set(Q: Any, rhs: np.ndarray, G: Any, b: np.ndarray, penalty: float, iters: int) -> np.ndarray:
+    """The least ``x^T Q x / 2 - rhs^T x`` (sparse ``Q`` (n, n)) with the rows ``G x + b <= 0`` (sparse
+    ``G`` (R, n), ``b`` (R,)) as an active set of quadratic penalties of weight ``penalty``: the violated
+    rows join, the met ones leave, until the set repeats or ``iters`` solves."""
+    from scipy.sparse.linalg import spsolve
+
     x = spsolve(Q.tocsc(), rhs)
-    active = np.zeros(R, bool)
+    active = np.zeros(len(b), bool)
     for _ in range(iters):
-        viol = G @ x + b_a > 0
+        viol = G @ x + b > 0
         if np.array_equal(viol, active):
             break
         active = viol
         Ga = G[active]
-        x = spsolve((Q + penalty * (Ga.T @ Ga)).tocsc(), rhs - penalty * (Ga.T @ b_a[active]))
-    return np.stack([x[:T], x[T:]], -1)
+        x = spsolve((Q + penalty * (Ga.T @ Ga)).tocsc(), rhs - penalty * (Ga.T @ b[active]))
+    return x
 
 
 def flight_phases(flight: np.ndarray, low: np.ndarray, hover: float, fz: np.ndarray | None = None,
@@ -186,7 +195,6 @@ def vertical_correction(low: np.ndarray, fz: np.ndarray, contact: np.ndarray, ho
             vertical correction earlier rounds made [m]: the least ``prior + dz`` is sought.
     """
     from scipy.sparse import csr_matrix, identity, vstack
-    from scipy.sparse.linalg import spsolve
 
     T = len(low)
     A = accel_operator(T, fps)
@@ -203,16 +211,7 @@ def vertical_correction(low: np.ndarray, fz: np.ndarray, contact: np.ndarray, ho
     eye = identity(T, format="csr")
     G = csr_matrix(vstack([eye[up], -eye]))
     b = np.concatenate([low[up] - top, -(low - np.minimum(low, 0.0))])
-    x = spsolve(Q.tocsc(), rhs)
-    active = np.zeros(len(b), bool)
-    for _ in range(iters):
-        viol = G @ x + b > 0
-        if np.array_equal(viol, active):
-            break
-        active = viol
-        Ga = G[active]
-        x = spsolve((Q + penalty * (Ga.T @ Ga)).tocsc(), rhs - penalty * (Ga.T @ b[active]))
-    return x
+    return _active_set(Q, rhs, G, b, penalty, iters)
 
 
 def leg_weights(parents: np.ndarray, foot_nodes: list[int], height: np.ndarray) -> np.ndarray:

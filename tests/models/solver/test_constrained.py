@@ -183,30 +183,43 @@ def test_without_the_lift_the_rounds_take_a_shallow_sink_out_by_less_than_a_rigi
     assert out[False]["g_mpbpe"] < out[True]["g_mpbpe"] - 0.001
 
 
-def test_grouped_ranges_solve_as_each_range_alone():
-    """``coupled_lm_ik(groups=...)``: ranges of frames put side by side, each bounded by held frames, with
-    their own damping and step test, end where a solve of each range alone ends, though one range starts
-    far from its goals and the other near (one shared step test does not: the check can fail)."""
+def _h1_window(T: int):
+    """H1 with its own skeleton as reference, ``T`` random poses standing 1 m up: the double-precision
+    graph, joint map, angles, base pose, the goals (the poses' node positions) and a clamp into the
+    joint limits."""
     import dataclasses
 
     from test_physics import TrainingSample, collate, graph_from_batch, joint_map
 
     from mer_models.batch import batch_fk
-    from mer_models.config import EnergyConfig
-    from mer_models.solver.ik import coupled_lm_ik
 
-    r, _, q = _problem("h1", 16, 4)
+    r, _, q = _problem("h1", T, 4)
     s = r.skeleton
     eta = torch.from_numpy(joint_map(s, s))[None].double()
     g = graph_from_batch(collate([TrainingSample(np.zeros((3, s.num_nodes, 9), np.float32), s, s, joint_map(s, s))]), "tgt", "cpu")
     g = dataclasses.replace(g, **{f.name: getattr(g, f.name).double() for f in dataclasses.fields(g) if getattr(g, f.name).is_floating_point()})
-    base_pos = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(1, 16, 3).clone()
-    base_rot = torch.eye(3, dtype=torch.float64).expand(1, 16, 3, 3).clone()
+    base_pos = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(1, T, 3).clone()
+    base_rot = torch.eye(3, dtype=torch.float64).expand(1, T, 3, 3).clone()
     goal = batch_fk(g, q, base_pos, base_rot)[0]
+
+    def clamp(x: torch.Tensor) -> torch.Tensor:
+        return torch.minimum(torch.maximum(x, torch.from_numpy(s.lower.copy())), torch.from_numpy(s.upper.copy()))
+
+    return s, g, eta, q, base_pos, base_rot, goal, clamp
+
+
+def test_grouped_ranges_solve_as_each_range_alone():
+    """``coupled_lm_ik(groups=...)``: ranges of frames put side by side, each bounded by held frames, with
+    their own damping and step test, end where a solve of each range alone ends, though one range starts
+    far from its goals and the other near (one shared step test does not: the check can fail)."""
+    from mer_models.config import EnergyConfig
+    from mer_models.solver.ik import coupled_lm_ik
+
+    s, g, eta, q, base_pos, base_rot, goal, clamp = _h1_window(16)
     start = q.clone()
     start[:, :8] += 0.02 * torch.cos(torch.arange(s.num_nodes, dtype=torch.float64))
     start[:, 8:] += 1.2 * torch.sin(torch.arange(s.num_nodes, dtype=torch.float64))  # the second range far from its goals
-    start = torch.minimum(torch.maximum(start, torch.from_numpy(s.lower.copy())), torch.from_numpy(s.upper.copy()))
+    start = clamp(start)
     hold = torch.zeros(1, 16, dtype=torch.bool)
     hold[:, [0, 7, 8, 15]] = True  # ranges 0-7 and 8-15, a held frame at each end
     kw = dict(iters=6, smooth=0.05, tol=1e-4, change_of=q, change_smooth=0.5)
@@ -248,24 +261,12 @@ def test_a_refused_step_reuses_its_linearisation(monkeypatch):
     """``coupled_lm_ik``: after a step no group accepts, the iterate is the same, so the next iteration
     solves the same system (only the damping grows): the Jacobian is built once for both. H1 far from
     its goals with almost no damping, so the first full Gauss-Newton steps overshoot and are refused."""
-    import dataclasses
-
-    from test_physics import TrainingSample, collate, graph_from_batch, joint_map
-
     from mer_models.batch import batch_fk
     from mer_models.config import EnergyConfig
     from mer_models.solver import ik
 
-    r, _, q = _problem("h1", 8, 4)
-    s = r.skeleton
-    eta = torch.from_numpy(joint_map(s, s))[None].double()
-    g = graph_from_batch(collate([TrainingSample(np.zeros((3, s.num_nodes, 9), np.float32), s, s, joint_map(s, s))]), "tgt", "cpu")
-    g = dataclasses.replace(g, **{f.name: getattr(g, f.name).double() for f in dataclasses.fields(g) if getattr(g, f.name).is_floating_point()})
-    base_pos = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(1, 8, 3).clone()
-    base_rot = torch.eye(3, dtype=torch.float64).expand(1, 8, 3, 3).clone()
-    goal = batch_fk(g, q, base_pos, base_rot)[0]
-    start = q + 1.5 * torch.sin(torch.arange(s.num_nodes, dtype=torch.float64))
-    start = torch.minimum(torch.maximum(start, torch.from_numpy(s.lower.copy())), torch.from_numpy(s.upper.copy()))
+    s, g, eta, q, base_pos, base_rot, goal, clamp = _h1_window(8)
+    start = clamp(q + 1.5 * torch.sin(torch.arange(s.num_nodes, dtype=torch.float64)))
     calls = []
     real = ik._Problem.linearise
     monkeypatch.setattr(ik._Problem, "linearise", lambda self, *a: calls.append(1) or real(self, *a))
