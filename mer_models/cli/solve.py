@@ -27,6 +27,9 @@ def add_parser(ss: argparse._SubParsersAction) -> None:
     p.add_argument("--physics", action=argparse.BooleanOptionalAction, default=True,
                    help="the optimiser's physical terms, as mer retarget (default; --no-physics: key points alone, "
                         "as teachers solved before them)")
+    p.add_argument("--physics-method", choices=["penalty", "constraints"], default=None,
+                   help="how the physical terms are met: penalty (a robot source's default, as mer retarget) or constraints "
+                        "(the plain solve, then the least change that meets them; a human source's default; docs/model.md)")
     p.add_argument("--batch", type=int, default=64, metavar="N", help="windows solved together (default 64)")
     p.add_argument("--shard-index", type=int, default=None, metavar="I", help="solve only shard files i with i %% N == I")
     p.add_argument("--num-shards", type=int, default=1, metavar="N", help="number of parallel jobs (default 1)")
@@ -53,7 +56,13 @@ def cmd_solve(args) -> int:
         torch.set_num_threads(args.threads)
     kw = {"scaling": args.scaling, "batch": args.batch}
     if not args.physics:
+        if args.physics_method is not None:
+            raise MerError("--physics-method with --no-physics: there are no physical terms to meet", fix="drop one of the two")
         kw["physics"] = None
+    elif args.physics_method is not None:
+        from mer_models.solver.physics import PhysicsConfig
+
+        kw["physics"] = PhysicsConfig(method=args.physics_method)
     if args.gn_iters is not None:
         if args.gn_iters < 1:
             raise MerError("--gn-iters must be >= 1")
