@@ -8,7 +8,9 @@ Steps (each resumable: the same command continues a killed run):
 1. **shards**: ``mer shards build --synthetic 8 --synthetic-seconds 20`` for the 8 built-in robots, each
    both source and target, one augmented skeleton per window and target (as ``tools/train_base.py``).
    Synthetic motion generated in code: the weights carry no LAFAN1 licence (Apache-2.0).
-2. **teacher**: ``mer shards solve`` (the optimiser's solution, with its physical terms, of every sample).
+2. **teacher**: ``mer shards solve --physics-method constraints`` (the optimiser's solution of every sample,
+   made physical by the constraint method: the least change to the plain solution that keeps every body
+   above the floor, bodies apart and stance feet planted; issue 50; before session 5: the penalty terms).
 3. **train**: the ``warm`` preset (:data:`mer_models.config.PRESETS`) for ``--steps`` steps, the cosine
    decay spanning them, in chunks of ``--chunk`` steps; each chunk trains on the shards whose teacher
    file is complete by then (so training can start while the teacher still solves the last shards).
@@ -138,7 +140,7 @@ def main() -> None:
     shards = args.shards or args.work / "shards"
     if args.shards is None:
         mer("shards", "build", *BUILD, "--out", str(shards), "--quiet")
-        mer("shards", "solve", str(shards), "--quiet")
+        mer("shards", "solve", str(shards), "--physics-method", "constraints", "--quiet")
     run_dir = train_step(args.work, shards, args.steps, args.chunk, args.init, args.lr)
     print(f"trained: {run_dir}")
 
