@@ -20,6 +20,7 @@ output.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -56,6 +57,16 @@ def _row(arts: list[dict], extra: dict) -> dict:
             "hover_frames": mean("hover_frames"), "skate_share": mean("skate_share"), **extra}  # fmt: skip
 
 
+def _value(cls, field: str, text: str):
+    """``text`` as the type of dataclass ``cls``'s field ``field`` (bool: true/false, 1/0)."""
+    kind = {f.name: f.type for f in dataclasses.fields(cls)}.get(field)
+    if kind is None:
+        raise SystemExit(f"--set {field}=...: {cls.__name__} has no field {field!r}")
+    if kind in ("bool", bool):
+        return text.lower() in ("1", "true", "yes")
+    return {"int": int, "float": float}.get(kind if isinstance(kind, str) else kind.__name__, str)(text)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--input", required=True, help="LAFAN1 robot CSV folder (g1/, h1/, ...)")
@@ -71,8 +82,11 @@ def main(argv=None) -> int:
                    help="mer's optimiser without its physical terms (mer retarget --no-physics), with them (the default, "
                         "the penalty method) and with them as constraints (PhysicsConfig.method); each target's runs back to back, "
                         "and a per-clip g-mpbpe table against the first")
+    p.add_argument("--set", nargs="+", default=[], metavar="FIELD=VALUE",
+                   help="PhysicsConfig fields for the physics and constraints methods (e.g. xy_weight=0.3 al_rounds=4)")
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
+    fields = {k: _value(PhysicsConfig, k, v) for k, v in (kv.split("=", 1) for kv in args.set)}
     src = load_robot(args.source)
     windows = args.windows or [f"{c}:{args.start}:{args.end}" for c in args.clips]
     per_clip: dict[tuple[str, str], dict[str, float]] = {}
@@ -88,7 +102,7 @@ def main(argv=None) -> int:
         geom = collision_model(robot)
         peer, peer_lim = [], []
         for mi, method in enumerate(args.methods):
-            physics = {"physics": PhysicsConfig(), "constraints": PhysicsConfig(method="constraints")}.get(method)
+            physics = {"physics": PhysicsConfig(**fields), "constraints": PhysicsConfig(**{**fields, "method": "constraints"})}.get(method)
             label = f"mer {method}"
             arts, g, jerk, lim, frames, sec = [], [], [], [], 0, 0.0
             for clip, f in feats.items():

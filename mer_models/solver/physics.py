@@ -99,7 +99,7 @@ class PhysicsConfig:
     fixed_faces: bool = True
     face_exact: float = 0.0  # constraints: entries overlapping deeper than this [m] at a round's start keep the exact separating-axis depth  # constraints: a round's self rows along the separating faces chosen at its start (.faces)
     al_lift: bool = True  # constraints: the base first raised by how far a foot is in the floor (False: the rounds start from the plain solution)
-    stance_xy: bool = True  # constraints: a stance foot's node held at its phase's mean x, y (of the plain solution)
+    stance_xy: bool = True  # constraints: a stance foot's lowest body-fixed point kept from sliding while the source's foot is down (.stance)
 
     def __post_init__(self) -> None:
         if self.method not in ("constraints", "penalty"):
