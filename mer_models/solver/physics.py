@@ -96,8 +96,8 @@ class PhysicsConfig:
     al_gap: int = 8  # constraints: runs of such frames closer than this are solved together
     al_step: float = 1.0  # constraints: the multiplier update's step, times the violation (1: the augmented Lagrangian's)
     al_look: int = 2  # constraints: pairs looked for anew every this many rounds (and before the rounds stop; 0: only then)
-    fixed_faces: bool = True
-    face_exact: float = 0.0  # constraints: entries overlapping deeper than this [m] at a round's start keep the exact separating-axis depth  # constraints: a round's self rows along the separating faces chosen at its start (.faces)
+    fixed_faces: bool = True  # constraints: a round's self rows along the separating faces chosen at its start (.faces)
+    face_exact: float = 0.0  # constraints: entries overlapping deeper than this [m] at a round's start keep the exact separating-axis depth
     al_lift: bool = True  # constraints: the base first raised by how far a foot is in the floor (False: the rounds start from the plain solution)
     stance_xy: bool = True  # constraints: a stance foot's lowest body-fixed point kept from sliding while the source's foot is down (.stance)
 
