@@ -8,9 +8,10 @@ Steps (each resumable: the same command continues a killed run):
 1. **shards**: ``mer shards build --synthetic 8 --synthetic-seconds 20`` for the 8 built-in robots, each
    both source and target, one augmented skeleton per window and target (as ``tools/train_base.py``).
    Synthetic motion generated in code: the weights carry no LAFAN1 licence (Apache-2.0).
-2. **teacher**: ``mer shards solve --physics-method constraints`` (the optimiser's solution of every sample,
-   made physical by the constraint method: the least change to the plain solution that keeps every body
-   above the floor, bodies apart and stance feet planted; issue 50; before session 5: the penalty terms).
+2. **teacher**: ``mer shards solve --physics-method METHOD`` (the optimiser's solution of every sample, with
+   its physical terms: ``penalty``, the default, is what the bundled weights were taught with; ``constraints``,
+   the least change to the plain solution that keeps every body above the floor, bodies apart and stance
+   feet planted, issue 50: measured in docs/model.md §The warm start, not bundled).
 3. **train**: the ``warm`` preset (:data:`mer_models.config.PRESETS`) for ``--steps`` steps, the cosine
    decay spanning them, in chunks of ``--chunk`` steps; each chunk trains on the shards whose teacher
    file is complete by then (so training can start while the teacher still solves the last shards).
@@ -126,6 +127,8 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--init", type=Path, help="start from these weights (a run's model.safetensors): a second cosine cycle")
     ap.add_argument("--lr", type=float, help="peak learning rate (default: the preset's)")
+    ap.add_argument("--physics-method", choices=["penalty", "constraints"], default="penalty",
+                    help="the teacher's physical terms (default penalty: the bundled weights' teacher)")
     ap.add_argument("--shards", type=Path, help="use these shards (built and solved elsewhere) instead of steps 1-2")
     ap.add_argument("--bundle-only", action="store_true", help="bundle WORK/run as it is (with --metrics JSON as its evaluation)")
     ap.add_argument("--metrics", type=Path, help="a JSON of evaluation figures to store in the bundled config.json")
@@ -140,7 +143,7 @@ def main() -> None:
     shards = args.shards or args.work / "shards"
     if args.shards is None:
         mer("shards", "build", *BUILD, "--out", str(shards), "--quiet")
-        mer("shards", "solve", str(shards), "--physics-method", "constraints", "--quiet")
+        mer("shards", "solve", str(shards), "--physics-method", args.physics_method, "--quiet")
     run_dir = train_step(args.work, shards, args.steps, args.chunk, args.init, args.lr)
     print(f"trained: {run_dir}")
 
