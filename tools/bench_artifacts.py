@@ -63,8 +63,13 @@ def _value(cls, field: str, text: str):
     if kind is None:
         raise SystemExit(f"--set {field}=...: {cls.__name__} has no field {field!r}")
     if kind in ("bool", bool):
-        return text.lower() in ("1", "true", "yes")
-    return {"int": int, "float": float}.get(kind if isinstance(kind, str) else kind.__name__, str)(text)
+        if text.lower() not in ("1", "true", "0", "false"):
+            raise SystemExit(f"--set {field}={text}: expected true or false")
+        return text.lower() in ("1", "true")
+    try:
+        return {"int": int, "float": float}.get(kind if isinstance(kind, str) else kind.__name__, str)(text)
+    except ValueError:
+        raise SystemExit(f"--set {field}={text}: expected a {kind}") from None
 
 
 def main(argv=None) -> int:
@@ -86,6 +91,9 @@ def main(argv=None) -> int:
                    help="PhysicsConfig fields for the physics and constraints methods (e.g. xy_weight=0.3 al_rounds=4)")
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
+    bad = [kv for kv in args.set if "=" not in kv]
+    if bad:
+        raise SystemExit(f"--set {bad[0]}: expected FIELD=VALUE (e.g. al_iters=2)")
     fields = {k: _value(PhysicsConfig, k, v) for k, v in (kv.split("=", 1) for kv in args.set)}
     src = load_robot(args.source)
     windows = args.windows or [f"{c}:{args.start}:{args.end}" for c in args.clips]
