@@ -18,6 +18,11 @@ hovering, self-penetration deeper than 1 cm, any body below -1 cm and the median
         --windows walk1_subject1:600:900 dance1_subject1:600:900 fallAndGetUp1_subject1:600:900 \\
         --variants plain full floor floor+self floor+self+hover
 
+``--ground``: every variant (the plain one too) tracks goals lifted, frame by frame, by how deep the
+plain solution's lowest body is in the floor (a running maximum over 7 frames, then a Gaussian of
+2 frames): what a reference grounded to the target's geometry would do to the ratios. g-mpbpe is
+then against the lifted goals, with the unedited goals' figure after it ("raw").
+
 Reads LAFAN1 data: never commit its output. docs/decisions.md §Physics as constraints, session 3.
 """
 
@@ -38,6 +43,8 @@ sys.path.insert(0, str(REPO))
 from mer_data.motion.lafan1 import read_lafan1_csv  # noqa: E402
 from mer_data.robots.collision import collision_model  # noqa: E402
 from mer_data.robots.registry import load_robot  # noqa: E402
+import mer_models.retarget.clip as clip_module  # noqa: E402
+from mer_data.kinematics.collision import shape_points  # noqa: E402
 from mer_models.retarget.clip import retarget_features, sequence_metrics, source_features  # noqa: E402
 from mer_models.solver.physics import PhysicsConfig  # noqa: E402
 
@@ -68,6 +75,36 @@ def variant(text: str) -> PhysicsConfig | None:
     return dataclasses.replace(BASES[name], **kw)
 
 
+def lift_of(res, geom) -> np.ndarray:
+    """(F,) [m]: how far to raise each frame of ``res`` so its lowest body is on the floor, smoothed."""
+    from scipy.ndimage import gaussian_filter1d, maximum_filter1d
+
+    pos, rot = res.motion.forward_kinematics()
+    low = shape_points(geom, torch.from_numpy(pos), torch.from_numpy(rot), "vertices")[..., 2].min(-1).values.min(-1).values
+    return gaussian_filter1d(maximum_filter1d(np.clip(-low.numpy(), 0.0, None), 7), 2.0)
+
+
+class lifted_goals:
+    """Within the block, :func:`prepare_reference` (as the retargeting calls it) raises the goals by ``dz`` (F,) [m]."""
+
+    def __init__(self, dz: np.ndarray | None):
+        self.dz, self.orig = dz, clip_module.prepare_reference
+
+    def __enter__(self):
+        if self.dz is not None:
+            def lifted(ref, source, target, dz=self.dz, orig=self.orig):
+                feats, scaled, shift, rot = orig(ref, source, target)
+                scaled = scaled.copy()
+                scaled[..., 2] += dz[:, None]
+                return feats, scaled, shift, rot
+
+            clip_module.prepare_reference = lifted
+        return self
+
+    def __exit__(self, *exc):
+        clip_module.prepare_reference = self.orig
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--input", required=True, help="LAFAN1 robot CSV folder (g1/, h1/, ...)")
@@ -77,6 +114,7 @@ def main(argv=None) -> int:
                    help="clip:first:last (0-based, last excluded)")  # fmt: skip
     p.add_argument("--variants", nargs="+", default=["plain", "full", "floor", "floor+self", "floor+self+hover"])
     p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--ground", action="store_true", help="goals lifted by the plain solution's depth in the floor (docstring)")
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
     configs = [(v, variant(v)) for v in args.variants]
@@ -90,15 +128,20 @@ def main(argv=None) -> int:
     for t in args.targets:
         robot = load_robot(t)
         geom = collision_model(robot)
-        base = None
+        base, lifts = None, {}
         for name, cfg in configs:
-            g, jerk, hover, self_pen, floor, skate, sec, frames = [], [], [], [], [], [], 0.0, 0
-            for f in feats.values():
+            g, raw, jerk, hover, self_pen, floor, skate, sec, frames = [], [], [], [], [], [], [], 0.0, 0
+            for w, f in feats.items():
+                if args.ground and w not in lifts:
+                    lifts[w] = lift_of(retarget_features(f, src.skeleton, robot.skeleton, method="optimize", fps=FPS), geom)
                 t0 = time.perf_counter()
-                res = retarget_features(f, src.skeleton, robot.skeleton, method="optimize", fps=FPS, physics=cfg)
+                with lifted_goals(lifts.get(w)):
+                    res = retarget_features(f, src.skeleton, robot.skeleton, method="optimize", fps=FPS, physics=cfg)
                 sec += time.perf_counter() - t0
                 frames += len(f)
                 met = sequence_metrics(f, src.skeleton, res.motion, prepared=res.prepared, geometry=geom)
+                if args.ground:
+                    raw.append(sequence_metrics(f, src.skeleton, res.motion)["g_mpbpe"])
                 g.append(met["g_mpbpe"])
                 jerk.append(met["jerk_frame"])
                 hover.append(met["hover_frames"])
@@ -108,6 +151,8 @@ def main(argv=None) -> int:
             row = {"g": np.array(g), "jerk": float(np.mean(jerk)), "fps": frames / sec}
             base = base or row
             per = " ".join(f"{x / y:.2f}" for x, y in zip(row["g"], base["g"]))
+            if raw:
+                per += f"; raw {1000 * np.mean(raw):.1f} mm"
             print(f"{t:9s} {name:42s} g-mpbpe {1000 * row['g'].mean():5.1f} mm x{row['g'].mean() / base['g'].mean():.2f} [{per}] "
                   f"jerk x{row['jerk'] / base['jerk']:.2f} hovering {np.mean(hover):.3f} self>1cm {np.mean(self_pen):.3f} "
                   f"body<-1cm {np.mean(floor):.3f} skate {100 * np.nanmean(np.array(skate, float)):.1f} cm/s frames/s {row['fps']:.0f} x{row['fps'] / base['fps']:.2f}", flush=True)  # fmt: skip

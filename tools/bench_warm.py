@@ -10,7 +10,8 @@ source's LAFAN1 clips (``--split all``, as ``mer evaluate --max-windows``), reta
 * ``mer-base + 2``: the diffusion model (``--base``) + 2 iterations.
 
 Every path gets the same batch (collation, the goals, timed once and added to each path's time)
-and the optimiser's physical terms as ``mer evaluate`` runs them (``--no-physics``: without).
+and the optimiser's physical terms as ``mer evaluate`` runs them (``--no-physics``: without;
+``--physics-method constraints``: the constraint method, :mod:`mer_models.solver.constrained`).
 Printed per pair: g-mpbpe [m] and its ratio to the optimiser's, jerk (``E_smooth``
 [rad/frame^3]) and its ratio, the share of frames over a joint limit, and time per 960 frames
 [ms] with its ratios to the capped and to the full optimiser; then the means over pairs and the
@@ -60,7 +61,7 @@ def run_pair(src: str, target: str, windows: list, warm, base, args) -> dict:
     energy = EnergyConfig()
     phys = {}
     if not args.no_physics:
-        phys = {"physics": PhysicsConfig(), "geometry": collision_model(t), "ref_skeleton": s.skeleton, "fps": 30.0,
+        phys = {"physics": PhysicsConfig(method=args.physics_method), "geometry": collision_model(t), "ref_skeleton": s.skeleton, "fps": 30.0,
                 "target_skeleton": t.skeleton}  # fmt: skip
     sec: dict[str, float] = {}
     motions: dict[str, list] = {}
@@ -124,13 +125,17 @@ def main() -> None:
     ap.add_argument("--refine", type=int, nargs="+", default=[2, 3])
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--no-physics", action="store_true")
+    ap.add_argument("--physics-method", choices=("penalty", "constraints"), default="penalty",
+                    help="the physical terms' method in every path (PhysicsConfig.method; default penalty)")
     ap.add_argument("--json")
     args = ap.parse_args()
+    if args.no_physics and args.physics_method != "penalty":
+        ap.error("--physics-method needs the physical terms: drop --no-physics")
     torch.set_num_threads(args.threads)
     warm = resolve_model(args.model)
     base = None if args.base == "none" else resolve_model(args.base)
     load0 = os.getloadavg()[0]
-    print(f"warm {args.model}  base {args.base}  threads {args.threads}  physics {'off' if args.no_physics else 'on'}  load {load0:.2f}")
+    print(f"warm {args.model}  base {args.base}  threads {args.threads}  physics {'off' if args.no_physics else args.physics_method}  load {load0:.2f}")
     results = []
     for src in args.sources:
         by = collect_windows(args.input, src, EvalOptions(split="all", max_windows=args.windows))
