@@ -110,7 +110,7 @@ def main(argv=None) -> int:
         geom = collision_model(robot)
         peer, peer_lim = [], []
         for mi, method in enumerate(args.methods):
-            physics = {"physics": PhysicsConfig(**fields), "constraints": PhysicsConfig(**{**fields, "method": "constraints"})}.get(method)
+            physics = {"physics": PhysicsConfig(**{**fields, "method": "penalty"}), "constraints": PhysicsConfig(**{**fields, "method": "constraints"})}.get(method)
             label = f"mer {method}"
             arts, g, jerk, lim, frames, sec = [], [], [], [], 0, 0.0
             for clip, f in feats.items():

@@ -11,7 +11,7 @@ source's LAFAN1 clips (``--split all``, as ``mer evaluate --max-windows``), reta
 
 Every path gets the same batch (collation, the goals, timed once and added to each path's time)
 and the optimiser's physical terms as ``mer evaluate`` runs them (``--no-physics``: without;
-``--physics-method constraints``: the constraint method, :mod:`mer_models.solver.constrained`).
+``--physics-method``: the method, default the package's (``PhysicsConfig().method``); constraints: :mod:`mer_models.solver.constrained`).
 Printed per pair: g-mpbpe [m] and its ratio to the optimiser's, jerk (``E_smooth``
 [rad/frame^3]) and its ratio, the share of frames over a joint limit, and time per 960 frames
 [ms] with its ratios to the capped and to the full optimiser; then the means over pairs and the
@@ -125,11 +125,11 @@ def main() -> None:
     ap.add_argument("--refine", type=int, nargs="+", default=[2, 3])
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--no-physics", action="store_true")
-    ap.add_argument("--physics-method", choices=("penalty", "constraints"), default="penalty",
-                    help="the physical terms' method in every path (PhysicsConfig.method; default penalty)")
+    ap.add_argument("--physics-method", choices=("penalty", "constraints"), default=PhysicsConfig().method,
+                    help="the physical terms' method in every path (PhysicsConfig.method; default %(default)s)")
     ap.add_argument("--json")
     args = ap.parse_args()
-    if args.no_physics and args.physics_method != "penalty":
+    if args.no_physics and args.physics_method != PhysicsConfig().method:
         ap.error("--physics-method needs the physical terms: drop --no-physics")
     torch.set_num_threads(args.threads)
     warm = resolve_model(args.model)

@@ -140,6 +140,7 @@ def pair_depths(model: Any, pos: torch.Tensor, rot: torch.Tensor, pairs: Any = N
 
 
 _SIZES = (8, 16, 32, 64, 128, 256, 512)  # size classes of shapes' point and plane counts (_by_size)
+TIE_M = 1e-5  # [m] overlaps closer than this are a tie: the separating axis is then the first shape's (float32 rounding is ~1e-7 m)
 
 
 def _counts(x: torch.Tensor) -> torch.Tensor:
@@ -260,7 +261,8 @@ def contact_points(model: Any, pos: torch.Tensor, rot: torch.Tensor, entries: tu
     fn = _separating if sat else _deepest
     da, pa, na = _by_size(fn, pts, planes, node, p2, r2, f, sa, sb)
     db, pb, nb = _by_size(fn, pts, planes, node, p2, r2, f, sb, sa)
-    a_in = ((da <= db) if sat else (da >= db))[:, None]  # the separating axis: the lesser overlap
+    # the separating axis: the lesser overlap; a tie (mirror-symmetric bodies) goes to sa, not to rounding
+    a_in = ((da <= db + TIE_M) if sat else (da >= db))[:, None]
     point = torch.where(a_in, pa, pb)
     normal = torch.where(a_in, na, nb)
     reach = torch.where(a_in[:, 0], node[sa], node[sb])

@@ -21,6 +21,8 @@ from mer_data.kinematics.collision import contact_points
 
 __all__ = ["fix_faces", "face_points"]
 
+POINT_SOFTNESS_M = 5e-4  # [m] vertices this much shallower than the deepest weigh 1/e of it in a row's point
+
 
 def fix_faces(model: Any, pos: torch.Tensor, rot: torch.Tensor, entries: tuple, K: int, which: str = "sat", exact_over: float = float("inf")) -> dict:
     """Each entry's reaching shape and the other body's separating plane at node poses ``pos``
@@ -63,14 +65,17 @@ def face_points(model: Any, pos: torch.Tensor, rot: torch.Tensor, faces: dict, v
     world = torch.einsum("eij,evj->evi", rot[bi, ti, rn], verts[s]) + pos[bi, ti, rn][:, None]  # (E, V, 3)
     ro, to = rot[bi, ti, other], pos[bi, ti, other]
     local = torch.einsum("eji,evj->evi", ro, world - to[:, None])
-    signed, v = ((local * faces["n"][:, None]).sum(-1) + faces["d"][:, None]).min(-1)  # padding repeats a vertex
-    e = torch.arange(len(bi), device=pos.device)
+    dist = (local * faces["n"][:, None]).sum(-1) + faces["d"][:, None]  # (E, V) signed distance to the plane
+    signed = dist.min(-1).values  # padding repeats a vertex
     out_d = torch.full((B, T, K), float("-inf"), dtype=pos.dtype, device=pos.device)
     out_p, out_n = pos.new_zeros(B, T, K, 3), pos.new_zeros(B, T, K, 3)
     out_a = torch.zeros(B, T, K, dtype=torch.long, device=pos.device)
     out_b = torch.zeros_like(out_a)
     out_d[bi, ti, ki] = -signed
-    out_p[bi, ti, ki] = world[e, v]
+    # the row's point: the vertices near the deepest, softly weighted (a face parallel to the plane has several
+    # vertices at one depth; which of them is lowest flips with rounding, and with it the row's direction)
+    w = torch.softmax(-(dist - signed[:, None]) / POINT_SOFTNESS_M, -1)
+    out_p[bi, ti, ki] = (w[..., None] * world).sum(-2)
     out_n[bi, ti, ki] = torch.einsum("eij,ej->ei", ro, faces["n"])
     out_a[bi, ti, ki], out_b[bi, ti, ki] = rn, other
     outs = (out_d, out_p, out_n, out_a, out_b)

@@ -10,6 +10,8 @@ from test_physics import _problem, _standing_features
 
 from mer_data.kinematics.rotations import axis_angle_to_matrix
 from mer_data.robots.collision import collision_model
+from mer_data.robots.registry import load_robot
+from mer_models.retarget.clip import source_features
 from mer_models.solver.physics import PhysicsConfig, PhysicsInputs
 from mer_models.solver.stance import lowest_foot_points, slip_cost
 from mer_models.solver.tridiagonal import block_tridiagonal_solve
@@ -82,6 +84,37 @@ def test_the_constraints_lift_a_sunken_reference_out_of_the_floor():
     assert m["g_mpbpe"] < 0.06
 
 
+def _displacement(feats, s, cfg, eps: float) -> float:
+    """Largest body displacement [m] between the constraint method's results for ``feats`` and for
+    ``feats`` with ``eps`` [m] of noise on the base path (tools/bench_sensitivity.py)."""
+    from mer_models.retarget.clip import retarget_features
+
+    g = feats.copy()
+    g[:, 0, 3:6] += eps * np.random.default_rng(0).standard_normal((len(feats), 3))
+    a, b = (retarget_features(f, s, s, method="optimize", fps=30.0, physics=cfg).motion.forward_kinematics()[0] for f in (feats, g))
+    return float(np.linalg.norm(a - b, axis=-1).max())
+
+
+def test_a_rounding_level_change_of_the_input_moves_the_result_by_as_little():
+    """The constraint method is continuous where its decisions tie: H1 standing 5 cm in the floor (the first
+    lift puts every corner of both flat soles on the floor at once: rows exactly at their bound, which
+    rounding switched on or off, moved bodies by centimetres) and TALOS's feet pushed into each other (parallel
+    faces: which vertex is deepest flipped with rounding, and with it the self row's direction)."""
+    cfg = PhysicsConfig(method="constraints")
+    r, feats = _standing_features("h1", 30, 0.05)
+    assert _displacement(feats, r.skeleton, cfg, 1e-7) < 1e-4
+    t = load_robot("talos")
+    s = t.skeleton
+    F, J = 30, s.num_nodes
+    q = np.zeros((F, J))
+    hip = [s.node_names.index(n) for n in s.node_names if "leg_left_2" in n or "leg_right_2" in n]
+    ramp = np.clip(np.minimum(np.arange(F) - 5, 24 - np.arange(F)) / 4, 0, 1)
+    q[:, hip[0]], q[:, hip[1]] = -0.3 * ramp, 0.3 * ramp
+    _, sunk = _standing_features("talos", F, 0.0)
+    feats = source_features(sunk[:, 0, 3:6], np.tile([1.0, 0, 0, 0], (F, 1)), q, s, 30.0)
+    assert _displacement(feats, s, cfg, 1e-7) < 1e-4
+
+
 def _talos_posed(T: int):
     """TALOS (hulls) in ``T`` random poses at the origin: its problem, collision model, the angles, base
     pose and node frames."""
@@ -113,7 +146,13 @@ def test_fixed_faces_give_the_separating_axis_depth_and_bound_it_after_a_move():
     assert len(bi) >= 10 and bool((depth[bi, ti, ki] > 0).any())  # some pairs overlap, some do not
     torch.testing.assert_close(fd[bi, ti, ki], depth[bi, ti, ki], atol=1e-9, rtol=0)
     torch.testing.assert_close(fn[bi, ti, ki], normal[bi, ti, ki], atol=1e-9, rtol=0)
-    torch.testing.assert_close(fp[bi, ti, ki], point[bi, ti, ki], atol=1e-9, rtol=0)
+    from mer_models.solver.faces import POINT_SOFTNESS_M
+
+    # the row's point: the deepest vertex where it stands alone, else weighted towards the vertices as deep
+    off = ((fp - point)[bi, ti, ki] * fn[bi, ti, ki]).sum(-1)  # how much shallower along the face's normal
+    assert bool((off > -1e-9).all()) and bool((off < 5 * POINT_SOFTNESS_M).all())
+    alone = (fp - point)[bi, ti, ki].norm(dim=-1) < 1e-4
+    assert bool(alone.any()) and bool((~alone).any())  # a vertex alone at its depth, or the face's vertices as deep
     assert torch.equal(fa[bi, ti, ki], na[bi, ti, ki]) and torch.equal(fb[bi, ti, ki], nb[bi, ti, ki])
     gen = torch.Generator().manual_seed(1)
     moved = q + 0.05 * torch.randn(q.shape, generator=gen, dtype=torch.float64)
@@ -345,3 +384,25 @@ def test_round_lows_exact_where_the_floor_shift_reaches_and_a_bound_above():
     torch.testing.assert_close(low[same], exact[same], atol=1e-12, rtol=0)
     assert bool((low[~same] <= exact[~same] + 1e-12).all()) and bool((low[~same] > shift[~same]).all())
     torch.testing.assert_close((shift - low).clamp_min(0), (shift - exact).clamp_min(0), atol=1e-12, rtol=0)
+
+
+def test_a_real_walk_is_as_continuous(lafan1_dir):
+    """TALOS walking from Unitree's G1 (frames 601-690 of walk1): the plain solution's soles are in the floor
+    (TALOS's feet are longer), so the first lift stands them on it; lifted exactly onto the floor, every
+    corner of a flat sole sat at its bound and a rounding-level change of the input moved bodies by
+    2 cm (tools/bench_sensitivity.py). The lift now clears the floor by LIFT_MARGIN_M."""
+    from mer_data.motion.lafan1 import read_lafan1_csv
+
+    g1, talos = load_robot("g1"), load_robot("talos")
+    m = read_lafan1_csv(lafan1_dir / "g1" / "walk1_subject1.csv", g1)
+    src = source_features(m.base_pos, m.base_quat, m.node_angles(g1.skeleton), g1.skeleton, 30.0)[600:690]
+    cfg = PhysicsConfig(method="constraints")
+
+    def bodies(f):
+        from mer_models.retarget.clip import retarget_features
+
+        return retarget_features(f, g1.skeleton, talos.skeleton, method="optimize", fps=30.0, physics=cfg).motion.forward_kinematics()[0]
+
+    g = src.copy()
+    g[:, 0, 3:6] += 1e-7 * np.random.default_rng(0).standard_normal((len(src), 3))
+    assert float(np.linalg.norm(bodies(src) - bodies(g), axis=-1).max()) < 1e-4
