@@ -51,7 +51,7 @@ from .stance import lowest_foot_points
 __all__ = ["constrain", "NEAR_M", "TOLERANCE_M"]
 
 NEAR_M = 0.002  # pairs closer than self_margin + this are in a round's self rows (active or not)
-LIFT_MARGIN_M = 1e-4  # [m] the first lift's clearance above the floor
+LIFT_MARGIN_M = -1e-5  # [m] the first lift stops this far short of the floor: its rows start active, never at their bound
 TOLERANCE_M = 0.002  # a constraint met to within this [m] needs no further round
 SLIDE_TOL_M = 0.0015  # a stance foot's material point slower than this per frame [m] needs no further round
 
@@ -208,7 +208,7 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
     low0 = lowest_points(model, pos, rot)[0]
     sole = torch.cat(feet) if any(len(f) for f in feet) else torch.arange(S, device=dev)
     need = (-low0[..., sole].amin(-1)).clamp_min(0)  # (B, T): the base lifted first where a foot is in the floor
-    need = torch.where(need > 0, need + LIFT_MARGIN_M, need)  # clear of it: a row exactly at its bound flips with rounding
+    need = torch.where(need > 0, (need + LIFT_MARGIN_M).clamp_min(0), need)  # a row exactly at its bound flips with rounding
     if c.al_lift and bool((need > 0).any()):  # (a start the floor's linearisation holds from; the rounds then take back what they can)
         base_pos = base_pos.clone()
         base_pos[..., 2] += need

@@ -48,7 +48,7 @@ import torch
 from mer_data.kinematics.collision import contact_points, pair_contacts
 
 from . import goal_edits, repair, stance
-from .faces import POINT_SOFTNESS_M, face_points
+from .faces import face_points
 from .goal_edits import phase_mean
 from .repair import SELF_POINTS
 
@@ -283,12 +283,8 @@ class Physics:
         if self.contacts is not None and self.feet_on:
             fs = torch.cat(self.feet)  # the feet's shapes only
             verts = torch.einsum("btsij,svj->btsvi", rot[:, :, self.node[fs]], self.verts[fs]) + pos[:, :, self.node[fs], None]
-            # each shape's lowest point as a soft minimum of its vertices' heights (at most POINT_SOFTNESS_M log 4 under
-            # the lowest where a flat sole's four corners tie; which corner is lowest flips with rounding, and with a
-            # hard minimum the row's lever arm flipped with it); its gradient: the vertices' weighted by its softmax
-            low_z = -POINT_SOFTNESS_M * torch.logsumexp(-verts[..., 2] / POINT_SOFTNESS_M, -1)  # (B, T, F)
-            w = torch.softmax(-verts[..., 2] / POINT_SOFTNESS_M, -1)
-            low_p = (w[..., None] * verts).sum(-2)  # (B, T, F, 3)
+            low_z, low_v = verts[..., 2].min(-1)  # (B, T, F)
+            low_p = torch.gather(verts, 3, low_v[..., None, None].expand(*low_v.shape, 1, 3))[..., 0, :]  # (B, T, F, 3)
             at = 0
             for i, f in enumerate(self.feet):
                 if not len(f):

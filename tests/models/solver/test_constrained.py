@@ -390,7 +390,7 @@ def test_a_real_walk_is_as_continuous(lafan1_dir):
     """TALOS walking from Unitree's G1 (frames 601-690 of walk1): the plain solution's soles are in the floor
     (TALOS's feet are longer), so the first lift stands them on it; lifted exactly onto the floor, every
     corner of a flat sole sat at its bound and a rounding-level change of the input moved bodies by
-    2 cm (tools/bench_sensitivity.py). The lift now clears the floor by LIFT_MARGIN_M."""
+    2 cm (tools/bench_sensitivity.py). The lift now stops LIFT_MARGIN_M short: the rows start active."""
     from mer_data.motion.lafan1 import read_lafan1_csv
 
     g1, talos = load_robot("g1"), load_robot("talos")
