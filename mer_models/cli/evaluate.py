@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from .retarget import add_human_options, bvh_options, check_refine, physics_option
+from .retarget import add_human_options, add_physics_method, bvh_options, check_refine, physics_option
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -41,6 +41,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--physics", action=argparse.BooleanOptionalAction, default=True,
                    help="the optimiser (methods optimize and refine) with its physical terms, as mer retarget (default; "
                         "--no-physics: key points alone, the paper's energy)")
+    add_physics_method(p)
     p.add_argument("--balance", action="store_true",
                    help="the optimiser (methods optimize and refine) with the balance term, as mer retarget --balance "
                         "(docs/model.md §Balance)")

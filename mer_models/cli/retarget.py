@@ -113,9 +113,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--allow-unseen", action="store_true", help="retarget to a robot the model never saw (zero-shot)")
     p.add_argument("--physics", action=argparse.BooleanOptionalAction, default=True,
                    help="the optimiser (--method optimize, --refine) keeps every body above the floor and every joint "
-                        "within its URDF speed limit (default; about half the frames/s: --no-physics for key points "
+                        "within its URDF speed limit (default; 0.1-0.4x the frames/s: --no-physics for key points "
                         "alone; docs/decisions.md, Physical terms of the optimiser); a human source's stance feet also "
                         "stay on the floor without sliding while the human's foot is down (docs/model.md)")
+    add_physics_method(p)
     p.add_argument("--balance", action="store_true",
                    help="the optimiser (--method optimize, --refine) also keeps the zero-moment point in the support polygon "
                         "and flight ballistic, moving the base's horizontal path with the body above the legs (opt-in; "
@@ -138,17 +139,32 @@ def balance_option(args):
     return BalanceConfig()
 
 
+def add_physics_method(p) -> None:
+    """``--physics-method`` (``mer retarget``, ``mer evaluate``)."""
+    p.add_argument("--physics-method", choices=["constraints", "penalty"], default=None,
+                   help="how the physical terms are met: penalty (a robot source's default: weighted terms and goal "
+                        "edits) or constraints (a human source's default: the plain solve, then the least change that "
+                        "meets them); docs/decisions.md §Physics as constraints")
+
+
 def physics_option(args):
-    """The optimiser's physical terms (their default weights; a human source's feet planted by the
-    constraint method, :func:`~mer_models.retarget.clip.human_physics`), None with ``--no-physics``."""
+    """The optimiser's physical terms (their default weights and ``--physics-method``; a human source's feet
+    planted by the constraint method, :func:`~mer_models.retarget.clip.human_physics`), None with ``--no-physics``."""
+    from mer_data.base.errors import MerError
+
+    method = getattr(args, "physics_method", None)
     if not args.physics:
+        if method is not None:
+            raise MerError("--physics-method with --no-physics: there are no physical terms to meet", fix="drop one of the two")
         return None
     from mer_data.motion.sources import HUMAN_SOURCES
     from mer_models.retarget.clip import human_physics
     from mer_models.solver.physics import PhysicsConfig
 
     human = isinstance(getattr(args, "source", None), str) and args.source.lower() in HUMAN_SOURCES
-    return human_physics() if human else PhysicsConfig()
+    if method is None:
+        return human_physics() if human else PhysicsConfig()
+    return human_physics() if human and method == "constraints" else PhysicsConfig(method=method)
 
 
 def add_human_options(p) -> None:

@@ -221,7 +221,9 @@ def optimize_motion(
                 moved[rows] = torch.as_tensor(terms.free, device=q0.device)
             if balance is not None and smooth > 0:
                 with solver_stage("balance"):
-                    q0, p0, r0 = balance.solve(cfg, graph, eta, goal, q0, p0, r0, smooth=smooth, tol=tol, physics=physics, **gkw)
+                    # under the constraint method its floor and joint-speed terms hold the balance rounds, as penalties
+                    held = constrained.main() if constrained is not None else physics
+                    q0, p0, r0 = balance.solve(cfg, graph, eta, goal, q0, p0, r0, smooth=smooth, tol=tol, physics=held, **gkw)
     if iters > 0:
         z = limit_logit(q0, lower, upper).clone().requires_grad_(True)
         pos = p0.clone().requires_grad_(True)

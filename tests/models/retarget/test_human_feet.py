@@ -12,6 +12,7 @@ import pytest
 import torch
 from body_model_files import TPOSE22
 
+from mer_data.base.errors import MerError
 from mer_data.motion.contacts import foot_contacts
 from mer_data.motion.features import split_features
 from mer_data.motion.sources import BvhOptions, read_source
@@ -44,7 +45,7 @@ def test_a_floating_source_stands_on_the_floor(tmp_path):
     robot = load_robot("g1")
     model = collision_model(robot)
     out = {}
-    for name, phys in (("penalty", PhysicsConfig()), ("human", human_physics())):
+    for name, phys in (("penalty", PhysicsConfig(method="penalty")), ("human", human_physics())):
         m = retarget_features(feats, src.skeleton, robot.skeleton, method="optimize", physics=phys, geometry=[model]).motion
         out[name] = motion_artifacts(m.q, m.base_pos, m.base_rot, 30.0, robot.skeleton, model, feats, src.skeleton)
     assert out["human"]["hover_frames"] <= 0.05, out["human"]["hover_frames"]  # soles within 1 cm while the feet are down
@@ -58,3 +59,8 @@ def test_the_commands_give_human_sources_the_human_physics():
     assert physics_option(args) == human_physics() and physics_option(args).method == "constraints"
     assert physics_option(argparse.Namespace(physics=True, source="g1")) == PhysicsConfig()
     assert physics_option(argparse.Namespace(physics=False, source="bvh")) is None
+    assert physics_option(argparse.Namespace(physics=True, source="g1", physics_method="constraints")) == PhysicsConfig(method="constraints")
+    assert physics_option(argparse.Namespace(physics=True, source="bvh", physics_method="constraints")) == human_physics()
+    assert physics_option(argparse.Namespace(physics=True, source="bvh", physics_method="penalty")) == PhysicsConfig(method="penalty")
+    with pytest.raises(MerError, match="--no-physics"):
+        physics_option(argparse.Namespace(physics=False, source="g1", physics_method="penalty"))
