@@ -47,8 +47,9 @@ def fix_faces(model: Any, pos: torch.Tensor, rot: torch.Tensor, entries: tuple, 
 def face_points(model: Any, pos: torch.Tensor, rot: torch.Tensor, faces: dict, verts: torch.Tensor | None = None):
     """The entries' overlap along their fixed faces at a pose, laid out as
     :func:`~mer_data.kinematics.collision.contact_points` returns it: depth (B, T, K) [m] (``-inf``
-    where no entry), the reaching shape's deepest vertex (B, T, K, 3) and the face's outward normal
-    (B, T, K, 3) in the world, the reaching and the other node (B, T, K). ``verts``: the model's
+    where no entry), the row's point (B, T, K, 3): the reaching shape's vertices weighted towards the
+    deepest by a softmax (:data:`POINT_SOFTNESS_M`; vertices equally deep share it, the depth stays the
+    deepest's), and the face's outward normal (B, T, K, 3) in the world, the reaching and the other node (B, T, K). ``verts``: the model's
     vertices as a tensor of ``pos``'s dtype (made here if omitted). The last two poses' results are
     kept in ``faces["memo"]``: a solver measures each accepted candidate again as its next iterate."""
     memo = faces.setdefault("memo", [])
