@@ -89,13 +89,19 @@ def main(argv=None) -> int:
     p.add_argument("--balance-config", default="{}", help="BalanceConfig fields as JSON, e.g. '{\"rounds\": 4}'")
     p.add_argument("--torques", action="store_true", help="also the joint torques (their LP is most of the time)")
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--physics-method", choices=["penalty", "constraints"], default=PhysicsConfig().method,
+                   help="the physical terms' method of the physics methods (PhysicsConfig.method; default %(default)s)")
     p.add_argument("--json", help="append every run here as it finishes (JSON lines), then the table's rows")
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
     sl = slice(args.start, args.end)
     bcfg = json.loads(args.balance_config)
-    methods = {k: {n: (BalanceConfig(**{**dataclasses.asdict(v), **bcfg}) if n == "balance" else v) for n, v in kw.items()}
-               for k, kw in METHODS.items()}  # fmt: skip
+    def one(n: str, v):
+        if n == "balance":
+            return BalanceConfig(**{**dataclasses.asdict(v), **bcfg})
+        return dataclasses.replace(v, method=args.physics_method) if n == "physics" else v
+
+    methods = {k: {n: one(n, v) for n, v in kw.items()} for k, kw in METHODS.items()}
     out = Path(args.json) if args.json else None
 
     def record(row: dict) -> None:
