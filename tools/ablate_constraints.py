@@ -40,11 +40,11 @@ import torch
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+import mer_models.retarget.clip as clip_module  # noqa: E402
+from mer_data.kinematics.collision import shape_points  # noqa: E402
 from mer_data.motion.lafan1 import read_lafan1_csv  # noqa: E402
 from mer_data.robots.collision import collision_model  # noqa: E402
 from mer_data.robots.registry import load_robot  # noqa: E402
-import mer_models.retarget.clip as clip_module  # noqa: E402
-from mer_data.kinematics.collision import shape_points  # noqa: E402
 from mer_models.retarget.clip import retarget_features, sequence_metrics, source_features  # noqa: E402
 from mer_models.solver.physics import PhysicsConfig  # noqa: E402
 

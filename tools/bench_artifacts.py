@@ -72,6 +72,14 @@ def _value(cls, field: str, text: str):
         raise SystemExit(f"--set {field}={text}: expected a {kind}") from None
 
 
+def set_fields(cls, items: list[str]) -> dict:
+    """``--set FIELD=VALUE ...`` as keyword arguments of dataclass ``cls`` (a clear exit on a bad item)."""
+    bad = [kv for kv in items if "=" not in kv]
+    if bad:
+        raise SystemExit(f"--set {bad[0]}: expected FIELD=VALUE (e.g. al_iters=2)")
+    return {k: _value(cls, k, v) for k, v in (kv.split("=", 1) for kv in items)}
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--input", required=True, help="LAFAN1 robot CSV folder (g1/, h1/, ...)")
@@ -91,10 +99,7 @@ def main(argv=None) -> int:
                    help="PhysicsConfig fields for the physics and constraints methods (e.g. xy_weight=0.3 al_rounds=4)")
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
-    bad = [kv for kv in args.set if "=" not in kv]
-    if bad:
-        raise SystemExit(f"--set {bad[0]}: expected FIELD=VALUE (e.g. al_iters=2)")
-    fields = {k: _value(PhysicsConfig, k, v) for k, v in (kv.split("=", 1) for kv in args.set)}
+    fields = set_fields(PhysicsConfig, args.set)
     src = load_robot(args.source)
     windows = args.windows or [f"{c}:{args.start}:{args.end}" for c in args.clips]
     per_clip: dict[tuple[str, str], dict[str, float]] = {}

@@ -33,7 +33,7 @@ from mer_models.retarget.clip import retarget_features, source_features  # noqa:
 from mer_models.solver.physics import PhysicsConfig  # noqa: E402
 
 sys.path.insert(0, str(REPO / "tools"))
-from bench_artifacts import _value  # noqa: E402
+from bench_artifacts import set_fields  # noqa: E402
 
 FPS = 30.0
 METHODS = {"optimize": None, "physics": "penalty", "constraints": "constraints"}  # name -> PhysicsConfig.method
@@ -56,10 +56,7 @@ def main(argv=None) -> int:
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--set", nargs="+", default=[], metavar="FIELD=VALUE", help="PhysicsConfig fields (e.g. al_iters=8)")
     args = p.parse_args(argv)
-    bad = [kv for kv in args.set if "=" not in kv]
-    if bad:
-        raise SystemExit(f"--set {bad[0]}: expected FIELD=VALUE (e.g. al_iters=8)")
-    fields = {k: _value(PhysicsConfig, k, v) for k, v in (kv.split("=", 1) for kv in args.set)}
+    fields = set_fields(PhysicsConfig, args.set)
     if not args.eps > 0:
         raise SystemExit(f"--eps {args.eps}: expected a positive distance in metres")
     torch.set_num_threads(args.threads)

@@ -125,12 +125,13 @@ def main() -> None:
     ap.add_argument("--refine", type=int, nargs="+", default=[2, 3])
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--no-physics", action="store_true")
-    ap.add_argument("--physics-method", choices=("penalty", "constraints"), default=PhysicsConfig().method,
-                    help="the physical terms' method in every path (PhysicsConfig.method; default %(default)s)")
+    ap.add_argument("--physics-method", choices=("penalty", "constraints"), default=None,
+                    help=f"the physical terms' method in every path (PhysicsConfig.method; default {PhysicsConfig().method})")
     ap.add_argument("--json")
     args = ap.parse_args()
-    if args.no_physics and args.physics_method != PhysicsConfig().method:
+    if args.no_physics and args.physics_method is not None:
         ap.error("--physics-method needs the physical terms: drop --no-physics")
+    args.physics_method = args.physics_method or PhysicsConfig().method
     torch.set_num_threads(args.threads)
     warm = resolve_model(args.model)
     base = None if args.base == "none" else resolve_model(args.base)

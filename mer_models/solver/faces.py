@@ -75,7 +75,10 @@ def face_points(model: Any, pos: torch.Tensor, rot: torch.Tensor, faces: dict, v
     out_d[bi, ti, ki] = -signed
     # the row's point: the vertices near the deepest, softly weighted (a face parallel to the plane has several
     # vertices at one depth; which of them is lowest flips with rounding, and with it the row's direction)
-    w = torch.softmax(-(dist - signed[:, None]) / POINT_SOFTNESS_M, -1)
+    # (the padding repeats vertex 0: left out, or a padded shape's vertex 0 would outweigh its tied neighbours)
+    pad = torch.zeros_like(dist, dtype=torch.bool)
+    pad[:, 1:] = (verts[s][:, 1:] == verts[s][:, :1]).all(-1)
+    w = torch.softmax(-(dist - signed[:, None]).masked_fill(pad, float("inf")) / POINT_SOFTNESS_M, -1)
     out_p[bi, ti, ki] = (w[..., None] * world).sum(-2)
     out_n[bi, ti, ki] = torch.einsum("eij,ej->ei", ro, faces["n"])
     out_a[bi, ti, ki], out_b[bi, ti, ki] = rn, other

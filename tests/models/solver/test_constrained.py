@@ -5,6 +5,7 @@ differences of its cost, and a solve that must lift a sunken reference out of th
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 from test_physics import _problem, _standing_features
 
@@ -406,3 +407,24 @@ def test_a_real_walk_is_as_continuous(lafan1_dir):
     g = src.copy()
     g[:, 0, 3:6] += 1e-7 * np.random.default_rng(0).standard_normal((len(src), 3))
     assert float(np.linalg.norm(bodies(src) - bodies(g), axis=-1).max()) < 1e-4
+
+
+def test_a_flat_face_on_the_plane_gives_its_centre_as_the_row_point():
+    """A square lying flat 1 cm into the other body's face plane: its four corners are equally deep, so
+    the self row's point is their centre (not whichever corner rounding makes deepest, and not pulled
+    towards corner 0, which the shape's padding repeats)."""
+    from types import SimpleNamespace
+
+    from mer_models.solver.faces import face_points
+
+    square = np.array([[0.0, 0, 0], [0.2, 0, 0], [0.2, 0.1, 0], [0, 0.1, 0]])
+    verts = np.stack([np.concatenate([square, np.repeat(square[:1], 4, 0)]), np.zeros((8, 3))])  # padded as collision_model pads
+    model = SimpleNamespace(node=np.array([0, 1]), vertices=verts)
+    pos = torch.tensor([[[[0.0, 0.0, -0.01], [0.0, 0.0, 0.0]]]], dtype=torch.float64)  # (B, T, J, 3)
+    rot = torch.eye(3, dtype=torch.float64).expand(1, 1, 2, 3, 3)
+    one = torch.zeros(1, dtype=torch.long)
+    faces = {"entries": (one, one, one, one, one + 1), "K": 1, "reach": one, "other": one + 1,
+             "n": torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64), "d": torch.zeros(1, dtype=torch.float64), "exact": None}  # fmt: skip
+    depth, point, normal, reach, other = face_points(model, pos, rot, faces)
+    assert float(depth[0, 0, 0]) == pytest.approx(0.01)
+    torch.testing.assert_close(point[0, 0, 0], torch.tensor([0.1, 0.05, -0.01], dtype=torch.float64), atol=1e-9, rtol=0)
