@@ -142,14 +142,15 @@ def balance_option(args):
 def add_physics_method(p) -> None:
     """``--physics-method`` (``mer retarget``, ``mer evaluate``)."""
     p.add_argument("--physics-method", choices=["constraints", "penalty"], default=None,
-                   help="how the physical terms are met: penalty (a robot source's default: weighted terms and goal "
-                        "edits) or constraints (a human source's default: the plain solve, then the least change that "
-                        "meets them); docs/decisions.md §Physics as constraints")
+                   help="how the physical terms are met: constraints (the default: the plain solve, then the least "
+                        "change that meets them) or penalty (weighted terms, goal edits and repair rounds); "
+                        "docs/decisions.md §Physics as constraints")
 
 
 def physics_option(args):
-    """The optimiser's physical terms (their default weights and ``--physics-method``; a human source's feet
-    planted by the constraint method, :func:`~mer_models.retarget.clip.human_physics`), None with ``--no-physics``."""
+    """The optimiser's physical terms (their default weights and ``--physics-method``, the constraint method by
+    default; a human source's with its own no-slip weight, :func:`~mer_models.retarget.clip.human_physics`),
+    None with ``--no-physics``."""
     from mer_data.base.errors import MerError
 
     method = getattr(args, "physics_method", None)

@@ -28,8 +28,8 @@ def add_parser(ss: argparse._SubParsersAction) -> None:
                    help="the optimiser's physical terms, as mer retarget (default; --no-physics: key points alone, "
                         "as teachers solved before them)")
     p.add_argument("--physics-method", choices=["penalty", "constraints"], default=None,
-                   help="how the physical terms are met, as mer retarget --physics-method: penalty (a robot source's default) or "
-                        "constraints (the plain solve, then the least change that meets them; a human source's default; docs/model.md)")
+                   help="how the physical terms are met, as mer retarget --physics-method: constraints (the default: the plain "
+                        "solve, then the least change that meets them) or penalty (weighted terms and goal edits; docs/model.md)")
     p.add_argument("--batch", type=int, default=64, metavar="N", help="windows solved together (default 64)")
     p.add_argument("--shard-index", type=int, default=None, metavar="I", help="solve only shard files i with i %% N == I")
     p.add_argument("--num-shards", type=int, default=1, metavar="N", help="number of parallel jobs (default 1)")

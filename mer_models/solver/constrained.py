@@ -36,6 +36,7 @@ docs/decisions.md §Physics as constraints.
 from __future__ import annotations
 
 import dataclasses
+import logging
 from typing import Any
 
 import torch
@@ -44,16 +45,35 @@ from mer_data.kinematics.collision import lowest_points, pair_depths
 from mer_models.batch import batch_fk
 
 from .faces import face_points, fix_faces
+from .goal_edits import foot_extent
 from .ik import coupled_lm_ik
 from .repair import SELF_POINTS, widen
 from .stance import lowest_foot_points
 
-__all__ = ["constrain", "NEAR_M", "TOLERANCE_M"]
+__all__ = ["constrain", "feet_through", "NEAR_M", "TOLERANCE_M"]
+
+log = logging.getLogger(__name__)
 
 NEAR_M = 0.002  # pairs closer than self_margin + this are in a round's self rows (active or not)
 LIFT_MARGIN_M = -1e-5  # [m] the first lift stops this far short of the floor: its rows start active, never at their bound
 TOLERANCE_M = 0.002  # a constraint met to within this [m] needs no further round
 SLIDE_TOL_M = 0.0015  # a stance foot's material point slower than this per frame [m] needs no further round
+
+
+def feet_through(model: Any, pos: torch.Tensor, rot: torch.Tensor) -> torch.Tensor:
+    """(B,) bool: solutions with node poses ``pos`` (B, T, J, 3), ``rot`` (B, T, J, 3, 3) where a left
+    and a right foot shape overlap by more than half the narrower foot's width (separating-axis depth):
+    more than half through each other, where the least overlap is on the far side and a self row would
+    push them on through."""
+    foot = torch.as_tensor(model.foot, device=pos.device)
+    P = torch.as_tensor(model.pairs, device=pos.device).reshape(-1, 2)
+    sides = foot[P]
+    lr = ((sides[:, 0] == 1) & (sides[:, 1] == 2)) | ((sides[:, 0] == 2) & (sides[:, 1] == 1))
+    width = foot_extent(model)[0]
+    if not bool(lr.any()) or width <= 0:
+        return torch.zeros(pos.shape[0], dtype=torch.bool, device=pos.device)
+    d = pair_depths(model, pos, rot, P[lr], margin=0.0, which=SELF_POINTS)  # (B, T, K')
+    return (d > 0.5 * width).flatten(1).any(-1)
 
 
 def _foot_nodes(model: Any, dev: torch.device) -> tuple[list[torch.Tensor], list[int]]:
@@ -266,6 +286,9 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
             s_z = (s_z + k * up).clamp_min(0) * down
         viol = torch.stack([(-low).amax(-1), d.amax(-1) if Kp else q.new_zeros(B, T), up.amax(-1), slide], -1)
         worst = viol.clamp_min(0).amax((1, 2))
+        if log.isEnabledFor(logging.DEBUG):
+            log.debug("round %d: worst floor %.4f self %.4f hover %.4f slide %.4f m; frames unmet %d", rnd, *viol.clamp_min(0).amax((0, 1)).tolist(),
+                      int((viol[..., :3] > TOLERANCE_M).any(-1).sum()))  # fmt: skip
         if rnd == c.al_rounds or not bool((viol[..., :3] > TOLERANCE_M).any()):  # the constraints met (sliding is a penalty)
             break
         if rnd >= c.al_focus >= 0:  # the later rounds: only where a constraint is not met yet (the rest held)
@@ -289,7 +312,7 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
         terms = dataclasses.replace(physics, cfg=terms_cfg, al=al, pairs=None, pair_mask=None)
         # every run of free frames, with a held frame at each end, in one solve
         sub = _window(idx, goal=goal, q=q, base_pos=base_pos, base_rot=base_rot, plain=plain, hold=~free, goal_rot=goal_rot)
-        qs, ps, rs = coupled_lm_ik(cfg, graph, eta, sub["goal"], sub["q"], sub["base_pos"], sub["base_rot"], iters=c.al_iters, smooth=smooth, tol=tol,
+        qs, ps, rs = coupled_lm_ik(cfg, graph, eta, sub["goal"], sub["q"], sub["base_pos"], sub["base_rot"], iters=c.al_iters, tries=c.al_tries, smooth=smooth, tol=tol,
                                    change_of=sub["plain"], change_smooth=smooth * c.al_smooth, physics=_window_terms(terms, idx),
                                    hold=sub["hold"], goal_rot=sub["goal_rot"], rot_mask=rot_mask, groups=groups)  # fmt: skip
         if idx is None:

@@ -353,7 +353,7 @@ def coupled_lm_ik(
     hold: torch.Tensor | None = None,
     change_of: torch.Tensor | None = None,
     change_smooth: float = 0.0,
-    groups: torch.Tensor | None = None,
+    groups: torch.Tensor | None = None, tries: int | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Levenberg-Marquardt on a whole window at once: the temporal prior couples the frames exactly.
 
@@ -373,6 +373,7 @@ def coupled_lm_ik(
     (relative to ``w_kp``), on the change from those angles (a smooth change of a solution).
     ``groups`` (T,) long: frames of a group (0..G-1) share a damping and keep or refuse a step by
     their own cost (groups coupled only through held frames then solve as separate windows would).
+    ``tries``: at most this many linearisations (default ``iters``), a group stopping after ``iters`` steps.
     """
     B, T, J = q.shape
     P = _Problem(cfg, graph, eta, goal, q, goal_rot, rot_mask)
@@ -413,12 +414,12 @@ def coupled_lm_ik(
         G = int(groups.max()) + 1
     per_frame = (lambda x: x) if groups is None else (lambda x: x[:, groups])  # (B, G) -> (B, T) or (B, 1)
     per_group = (lambda x: x.sum(-1, keepdim=True)) if groups is None else (lambda x: (x - cut).new_zeros(B, G).index_add_(1, groups, x - cut))
-    mu = torch.full((B, G), damping, dtype=P.dtype, device=P.dev)
-    active = torch.ones(B, G, dtype=torch.bool, device=P.dev)
-    done = 0
+    mu, active = torch.full((B, G), damping, dtype=P.dtype, device=P.dev), torch.ones(B, G, dtype=torch.bool, device=P.dev)
+    done, accepted = 0, torch.zeros(B, G, dtype=torch.long, device=P.dev)
     same = None  # the last iteration's linearisation, kept while no group accepts a step (the iterate is the same)
-    for it in range(iters):
-        report(it, iters)
+    most = iters if tries is None else max(tries, iters)  # linearisations at most
+    for it in range(most):
+        report(it, most)
         if same is not None:  # a refused step: the same point, so the same system; only the damping differs
             h, g, c_speed, dense, state = same[0].clone(), *same[1:]
         else:
@@ -468,12 +469,12 @@ def coupled_lm_ik(
         cost, fit = torch.where(o1[..., 0], cost_c, cost), torch.where(o1[..., 0], fit_c, fit)
         ocols = torch.where(o2, ocols_c, ocols) if P.M else ocols
         mu = torch.where(active, torch.where(ok, mu / 3, mu * 4).clamp(1e-7, 1e6), mu)
-        done = it + 1
+        done, accepted = it + 1, accepted + ok.long()
         change = torch.where(ok, (total - total_c) / total.clamp_min(1e-12), torch.zeros_like(total))
-        active = active & ~(ok & (change < tol))
+        active = active & ~(ok & (change < tol)) & (accepted < iters)
         same = None if bool(ok.any()) else same
         if not bool(active.any()):
             break
     if stats is not None:
-        stats["iterations"], stats["cost"] = done, cost
+        stats.update(iterations=done, cost=cost, accepted=accepted)
     return P.full_q(qd), base_pos, base_rot

@@ -31,8 +31,9 @@ previous iterate, Jacobi-style, in both solvers. Weights are relative to ``Energ
 the defaults (floor, joint speed, the stance lock, feet apart and the self-penetration repair on;
 stance height, flat feet, anchors and swing off) and what each measured are in docs/decisions.md
 §Physical terms of the optimiser.
-``method`` "constraints" replaces all of that by the plain solve and then the least change that
-meets the requirements as constraints (:mod:`.constrained`; no goal edit, no repair round).
+That is the ``method`` "penalty". The default, ``method`` "constraints", replaces all of that by
+the plain solve and then the least change that meets the requirements as constraints
+(:mod:`.constrained`; no goal edit, no repair round; docs/decisions.md §Physics as constraints).
 Jacobians are analytic, the same form as the key points': a point ``p`` moving with node ``k``
 moves by ``a_j x (p - p_j)`` for every joint ``j`` at or above ``k``.
 """
@@ -83,10 +84,12 @@ class PhysicsConfig:
     feet_gap: float = 0.02  # the feet's goals kept this far apart beyond the target's foot width [m] (-1: off; PhysicsInputs.separate_feet)
     fine_iters: int = 8  # at least this many iterations of the fine (whole-window) stage (0: the optimiser's own)
     feasible: bool = True  # after the solve: joint speed clamped, base lifted off the floor (mer_models.retarget.feasible)
-    method: str = "penalty"  # "penalty": the terms above (the default, measured); "constraints": the plain solve, then the least change that meets them (.constrained)
+    method: str = "constraints"  # "constraints" (the default): the plain solve, then the least change that meets them (.constrained); "penalty": the terms above
     rho: float = 3.0  # constraints: the augmented Lagrangian's penalty weight, relative to w_kp
     al_rounds: int = 6  # constraints: most multiplier updates (each after al_iters whole-window iterations)
     al_iters: int = 4  # constraints: whole-window iterations per round
+    al_tries: int = 8  # constraints: at most this many linearisations per round (> al_iters: a refused step does not use up an iteration)
+    al_apart: bool = True  # constraints: where the plain solution has a foot more than half through the other, the rounds start from the feet's goals kept apart
     al_smooth: float = 48.0  # constraints: the temporal prior's weight in the rounds, relative to the solve's (a smooth change)
     hover: float = 0.005  # constraints: a stance foot's lowest point at most this high [m] while the source's foot is down
     al_reach: int = 4  # constraints: frames this far from an active constraint move with it; the rest are held

@@ -316,6 +316,42 @@ def test_a_refused_step_reuses_its_linearisation(monkeypatch):
     assert float((batch_fk(g, out[0], *out[1:])[0] - goal).norm(dim=-1).mean()) < float((batch_fk(g, start, base_pos, base_rot)[0] - goal).norm(dim=-1).mean())
 
 
+def test_with_tries_a_refused_step_does_not_use_up_an_iteration():
+    """``coupled_lm_ik(tries=...)``: H1 far from its goals with almost no damping (full Gauss-Newton
+    steps overshoot and are refused): with ``tries`` = ``iters`` some of the iterations are refused
+    steps; with more tries the solve takes more steps (at most ``iters``), using at most ``tries``
+    linearisations, and ends no higher in cost."""
+    from mer_models.config import EnergyConfig
+    from mer_models.solver import ik
+
+    s, g, eta, q, base_pos, base_rot, goal, clamp = _h1_window(8)
+    start = clamp(q + 1.5 * torch.sin(torch.arange(s.num_nodes, dtype=torch.float64)))
+    kw = dict(iters=12, damping=1e-7, tol=0.0)
+    few, many = {}, {}
+    ik.coupled_lm_ik(EnergyConfig(), g, eta, goal, start, base_pos, base_rot, stats=few, **kw)
+    ik.coupled_lm_ik(EnergyConfig(), g, eta, goal, start, base_pos, base_rot, stats=many, tries=24, **kw)
+    assert few["iterations"] == 12 and int(few["accepted"].min()) < 12
+    assert int(few["accepted"].min()) < int(many["accepted"].min()) <= 12 and 12 < many["iterations"] <= 24
+    assert float(many["cost"].sum()) <= float(few["cost"].sum())  # each step taken lowers the cost
+
+
+def test_a_foot_more_than_half_through_the_other_is_found():
+    """:func:`~mer_models.solver.constrained.feet_through`: TALOS standing (feet apart), and with its hips
+    rolled in until its feet are in each other deeper than half a foot's width (where the least overlap
+    is on the far side); only the second is found, per sample."""
+    from mer_models.batch import batch_fk
+    from mer_models.solver.constrained import feet_through
+
+    P, model, q, base_pos, base_rot, pos, rot = _talos_posed(4)
+    s = load_robot("talos").skeleton
+    zero = torch.zeros(1, 4, s.num_nodes, dtype=torch.float64)
+    crossed = zero.clone()
+    hip = [s.node_names.index(n) for n in s.node_names if "leg_left_2" in n or "leg_right_2" in n]
+    crossed[..., hip[0]], crossed[..., hip[1]] = -0.1, 0.1  # the feet 15 cm into each other (TALOS's foot 16 cm wide)
+    both = batch_fk(P.graph.select(torch.tensor([0, 0])), torch.cat([zero, crossed]), base_pos.expand(2, -1, -1), base_rot.expand(2, -1, -1, -1))
+    assert feet_through(model, *both).tolist() == [False, True]
+
+
 def test_pair_depths_exact_near_contact_and_a_bound_beyond():
     """:func:`pair_depths` (separating-axis depth) on TALOS in random poses: every entry within the margin
     is each pair's separating-axis depth (:func:`contact_points`, both ways), the cheaper face bounds

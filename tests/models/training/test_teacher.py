@@ -246,12 +246,13 @@ def test_a_human_reference_is_solved_with_the_human_feet(tmp_path):
         return batch_features(graph_from_batch(batch, "tgt", "cpu"), m["q"], m["base_pos"], m["base_rot"])
 
     torch.testing.assert_close(batch["teacher"], feats(human_physics()), atol=2e-4, rtol=0)
-    assert float((batch["teacher"] - feats(PhysicsConfig())).abs().max()) > 1e-3  # not the robot's penalty terms
+    assert float((batch["teacher"] - feats(PhysicsConfig(method="penalty"))).abs().max()) > 1e-3  # not the penalty terms
 
 
-def test_physics_method_constraints_is_what_the_teacher_solves_and_records(solved, tmp_path, capsys):
-    """``--physics-method constraints``: the robot-source samples are solved by the constraint method
-    (the teacher re-solved with it, issue 50), recorded in the teacher file; with --no-physics it is refused."""
+def test_physics_method_penalty_is_what_the_teacher_solves_and_records(solved, tmp_path, capsys):
+    """``--physics-method penalty``: the robot-source samples are solved by the penalty method (the
+    default is the constraint method, issue 50), recorded in the teacher file; over a teacher of the
+    default it needs --force; with --no-physics it is refused."""
     from mer_data.robots.collision import collision_model
     from mer_data.robots.registry import load_robot
     from mer_models.batch import batch_features, graph_from_batch
@@ -259,12 +260,12 @@ def test_physics_method_constraints_is_what_the_teacher_solves_and_records(solve
 
     out = tmp_path / "c"
     shutil.copytree(solved, out)
-    assert main(["shards", "solve", str(out), "--gn-iters", str(GN), "--batch", "3", "--quiet", "--physics-method", "constraints"]) == 1
-    assert "--force" in capsys.readouterr().err  # a teacher of the penalty method is there
-    assert main(["shards", "solve", str(out), "--gn-iters", str(GN), "--batch", "3", "--quiet", "--physics-method", "constraints",
+    assert main(["shards", "solve", str(out), "--gn-iters", str(GN), "--batch", "3", "--quiet", "--physics-method", "penalty"]) == 1
+    assert "--force" in capsys.readouterr().err  # a teacher of the constraint method is there
+    assert main(["shards", "solve", str(out), "--gn-iters", str(GN), "--batch", "3", "--quiet", "--physics-method", "penalty",
                  "--force"]) == 0  # fmt: skip
     ds = ShardDataset(out)
-    assert ds.teachers[0].solver["physics"]["method"] == "constraints"
+    assert ds.teachers[0].solver["physics"]["method"] == "penalty"
     s = next(ds[i] for i in range(len(ds)) if ds[i].provenance["target"] == "h1" and not ds[i].provenance["augmented"])
     batch = collate([s])
     kw = {"geometry": collision_model(load_robot("h1")), "ref_skeleton": s.reference_skeleton, "fps": 30.0, "target_skeleton": s.target_skeleton}
@@ -273,6 +274,6 @@ def test_physics_method_constraints_is_what_the_teacher_solves_and_records(solve
         m = optimize_batch(EnergyConfig(), batch, gn_iters=GN, physics=physics, **kw)
         return batch_features(graph_from_batch(batch, "tgt", "cpu"), m["q"], m["base_pos"], m["base_rot"])
 
-    torch.testing.assert_close(batch["teacher"], feats(PhysicsConfig(method="constraints")), atol=2e-4, rtol=0)
-    assert main(["shards", "solve", str(out), "--no-physics", "--physics-method", "constraints"]) == 1
+    torch.testing.assert_close(batch["teacher"], feats(PhysicsConfig(method="penalty")), atol=2e-4, rtol=0)
+    assert main(["shards", "solve", str(out), "--no-physics", "--physics-method", "penalty"]) == 1
     assert "--no-physics" in capsys.readouterr().err
