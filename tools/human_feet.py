@@ -154,7 +154,7 @@ def accuracy(files: list[Path], targets: list[str]) -> None:
     for name in targets:
         robot = load_robot(name)
         model = collision_model(robot)
-        for label, phys in (("penalty", PhysicsConfig()), ("human", human_physics())):
+        for label, phys in (("penalty", PhysicsConfig(method="penalty")), ("human", human_physics())):
             errs, jerks, t0 = [], [], time.perf_counter()
             for f in files:
                 src = read_source(f, human_kind(f, None))
