@@ -12,7 +12,8 @@ then minimises the same energy subject to
   (:mod:`.stance`, a penalty of weight ``rho * xy_weight``: its point is re-chosen each round);
 
 by an augmented Lagrangian around the whole-window Levenberg-Marquardt of
-:func:`~.ik.coupled_lm_ik`: each round runs ``al_iters`` of its iterations with one-sided rows
+:func:`~.ik.coupled_lm_ik`: each round takes ``al_iters`` of its steps (from at most ``al_tries``
+linearisations: a refused step does not use one up) with one-sided rows
 ``sqrt(rho) min(0, c(x) - s)`` per constraint ``c(x) >= 0`` (the shift ``s = lambda / rho`` is the
 multiplier, so rows exist only where a constraint is active and the block-tridiagonal system is
 kept), then updates ``s <- max(0, s - c(x))``; at most ``al_rounds`` updates, none once every
@@ -27,7 +28,10 @@ Within a round a self row is the overlap along the separating face chosen at its
 round) only before the rounds would stop. Frames a round's solve did not take keep their
 measures (lowest points, self depths) into the next round; the first search is exact only near
 contact (the rest of its candidates keep a bound). The base
-is first raised where a foot is in the floor (a start the floor's linearisation holds from). Joint
+is first raised where a foot is in the floor (a start the floor's linearisation holds from); where
+the plain solution has a foot more than half through the other (:func:`feet_through`), the caller
+(:func:`~.optimize.optimize_motion`, ``al_apart``) first solves those samples again with the feet's
+goals kept apart, so the self rows part them to the side they came from. Joint
 limits are the solver's projection; joint speed is the solver's coupled term and the feasibility
 pass after (:mod:`mer_models.retarget.feasible`) takes the rest exactly. What each choice measured:
 docs/decisions.md §Physics as constraints.

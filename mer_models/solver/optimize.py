@@ -199,11 +199,11 @@ def optimize_motion(
             if constrained is not None and smooth > 0:
                 crossed = feet_through(constrained.model, *batch_fk(graph, q0, p0, r0)).nonzero().flatten() if constrained.cfg.al_apart else []
                 if len(crossed):  # a foot more than half through the other: the rounds start from the feet's goals kept apart
-                    with solver_stage("feet apart"):
+                    with solver_stage("feet apart"):  # every iteration (tol 0): where a stop by tol fell flipped with rounding
                         sub = {k: None if v is None else v[crossed] for k, v in gkw.items()}
                         apart = constrained.separate_feet(goal[crossed], ref_base_rot[crossed])
                         qa, pa, ra = coupled_lm_ik(cfg, graph.select(crossed), eta[crossed], apart, q0[crossed], p0[crossed], r0[crossed],
-                                                   iters=ik_iters, smooth=smooth, tol=tol, **sub)  # fmt: skip
+                                                   iters=ik_iters, smooth=smooth, tol=0.0, **sub)  # fmt: skip
                     q0, p0, r0 = q0.clone(), p0.clone(), r0.clone()
                     q0[crossed], p0[crossed], r0[crossed] = qa, pa, ra
                 with solver_stage("constraints"):
