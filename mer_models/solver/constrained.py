@@ -28,10 +28,8 @@ Within a round a self row is the overlap along the separating face chosen at its
 round) only before the rounds would stop. Frames a round's solve did not take keep their
 measures (lowest points, self depths) into the next round; the first search is exact only near
 contact (the rest of its candidates keep a bound). The base
-is first raised where a foot is in the floor (a start the floor's linearisation holds from); where
-the plain solution has a foot more than half through the other (:func:`feet_through`), the caller
-(:func:`~.optimize.optimize_motion`, ``al_apart``) first solves those samples again with the feet's
-goals kept apart, so the self rows part them to the side they came from. Joint
+is first raised where a foot is in the floor (a start the floor's linearisation holds from). After
+``al_rounds`` rounds, a pair still :data:`DEEP_M` short of its margin gets up to ``al_extra`` more. Joint
 limits are the solver's projection; joint speed is the solver's coupled term and the feasibility
 pass after (:mod:`mer_models.retarget.feasible`) takes the rest exactly. What each choice measured:
 docs/decisions.md §Physics as constraints.
@@ -49,35 +47,19 @@ from mer_data.kinematics.collision import lowest_points, pair_depths
 from mer_models.batch import batch_fk
 
 from .faces import face_points, fix_faces
-from .goal_edits import foot_extent
 from .ik import coupled_lm_ik
 from .repair import SELF_POINTS, widen
 from .stance import lowest_foot_points
 
-__all__ = ["constrain", "feet_through", "NEAR_M", "TOLERANCE_M"]
+__all__ = ["constrain", "NEAR_M", "TOLERANCE_M"]
 
 log = logging.getLogger(__name__)
 
 NEAR_M = 0.002  # pairs closer than self_margin + this are in a round's self rows (active or not)
 LIFT_MARGIN_M = -1e-5  # [m] the first lift stops this far short of the floor: its rows start active, never at their bound
 TOLERANCE_M = 0.002  # a constraint met to within this [m] needs no further round
+DEEP_M = 0.01  # [m] a pair this far short of its margin after the rounds gets up to al_extra more (the metric's deep self-penetration: 1 cm)
 SLIDE_TOL_M = 0.0015  # a stance foot's material point slower than this per frame [m] needs no further round
-
-
-def feet_through(model: Any, pos: torch.Tensor, rot: torch.Tensor) -> torch.Tensor:
-    """(B,) bool: solutions with node poses ``pos`` (B, T, J, 3), ``rot`` (B, T, J, 3, 3) where a left
-    and a right foot shape overlap by more than half the narrower foot's width (separating-axis depth):
-    more than half through each other, where the least overlap is on the far side and a self row would
-    push them on through."""
-    foot = torch.as_tensor(model.foot, device=pos.device)
-    P = torch.as_tensor(model.pairs, device=pos.device).reshape(-1, 2)
-    sides = foot[P]
-    lr = ((sides[:, 0] == 1) & (sides[:, 1] == 2)) | ((sides[:, 0] == 2) & (sides[:, 1] == 1))
-    width = foot_extent(model)[0]
-    if not bool(lr.any()) or width <= 0:
-        return torch.zeros(pos.shape[0], dtype=torch.bool, device=pos.device)
-    d = pair_depths(model, pos, rot, P[lr], margin=0.0, which=SELF_POINTS)  # (B, T, K')
-    return (d > 0.5 * width).flatten(1).any(-1)
 
 
 def _foot_nodes(model: Any, dev: torch.device) -> tuple[list[torch.Tensor], list[int]]:
@@ -249,9 +231,11 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
     low = q.new_zeros(B, T, S)
     is_foot = torch.zeros(S, dtype=torch.bool, device=dev).index_fill(0, sole, True) if any(len(f) for f in feet) else torch.zeros(S, dtype=torch.bool, device=dev)
     dc = q.new_full((B, T, Kp), float("-inf"))  # each entry's last measure (+ self_margin)
-    for rnd in range(c.al_rounds + 1):
-        if rnd == c.al_rounds and stats is None:  # the last round's measures only fill stats: nothing moves after it
-            break
+    last, rnd, deep = c.al_rounds, -1, False  # deep: a pair short of its margin by more than DEEP_M at the last measure
+    while rnd < last:
+        rnd += 1
+        if rnd == last and stats is None and not (deep and last < c.al_rounds + c.al_extra):
+            break  # the last round's measures only fill stats (or decide on one more round): nothing moves after it
         m = None if bool(moved.all()) else moved.nonzero().flatten()
         low = _lows(model, pos, rot, s_floor, is_foot) if m is None else low.index_copy(1, m, _lows(model, pos[:, m], rot[:, m], s_floor[:, m], is_foot))  # (B, T, S)
         foot_z = torch.stack([low[..., f].amin(-1) if len(f) else low.new_full((B, T), float("inf")) for f in feet], -1)
@@ -266,7 +250,7 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
         d = q.new_zeros(B, T, 0)
         if Kp:
             d = None
-            if faces is not None and rnd < c.al_rounds and (c.al_look <= 0 or rnd % c.al_look):  # the last solve's entries along their round's faces (.faces: an upper bound)
+            if faces is not None and rnd < last and (c.al_look <= 0 or rnd % c.al_look):  # the last solve's entries along their round's faces (.faces: an upper bound)
                 fd = _along_faces(model, pos, rot, faces, Kp) + c.self_margin
                 d = torch.where(fd > float("-inf"), fd, dc)  # the other entries' frames have not moved since measured
                 rest = torch.stack([(-low).amax(-1), d.amax(-1), up.amax(-1)], -1)
@@ -293,7 +277,10 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
         if log.isEnabledFor(logging.DEBUG):
             log.debug("round %d: worst floor %.4f self %.4f hover %.4f slide %.4f m; frames unmet %d", rnd, *viol.clamp_min(0).amax((0, 1)).tolist(),
                       int((viol[..., :3] > TOLERANCE_M).any(-1).sum()))  # fmt: skip
-        if rnd == c.al_rounds or not bool((viol[..., :3] > TOLERANCE_M).any()):  # the constraints met (sliding is a penalty)
+        deep = Kp > 0 and bool((d > DEEP_M).any())
+        if rnd == last and deep and last < c.al_rounds + c.al_extra:
+            last += 1  # a pair still 1 cm short of its margin: one more round
+        if rnd == last or not bool((viol[..., :3] > TOLERANCE_M).any()):  # the constraints met (sliding is a penalty)
             break
         if rnd >= c.al_focus >= 0:  # the later rounds: only where a constraint is not met yet (the rest held)
             active = (viol[..., :3] > TOLERANCE_M).any(-1)

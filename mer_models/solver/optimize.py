@@ -49,7 +49,7 @@ from mer_data.kinematics.rotations import axis_angle_to_matrix, matrix_to_quat, 
 from mer_models.batch import BatchGraph, batch_fk
 from mer_models.config import EnergyConfig
 
-from .constrained import constrain, feet_through
+from .constrained import constrain
 from .energy import energy_terms
 from .ik import DEFAULT_SMOOTH, DEFAULT_TOL, coupled_lm_ik, gauss_newton_ik
 from .limits import limit_clip, limit_logit
@@ -197,15 +197,6 @@ def optimize_motion(
             if stats is not None:
                 stats["gn_iterations"] = ik_stats.get("iterations", 0)
             if constrained is not None and smooth > 0:
-                crossed = feet_through(constrained.model, *batch_fk(graph, q0, p0, r0)).nonzero().flatten() if constrained.cfg.al_apart else []
-                if len(crossed):  # a foot more than half through the other: the rounds start from the feet's goals kept apart
-                    with solver_stage("feet apart"):  # every iteration (tol 0): where a stop by tol fell flipped with rounding
-                        sub = {k: None if v is None else v[crossed] for k, v in gkw.items()}
-                        apart = constrained.separate_feet(goal[crossed], ref_base_rot[crossed])
-                        qa, pa, ra = coupled_lm_ik(cfg, graph.select(crossed), eta[crossed], apart, q0[crossed], p0[crossed], r0[crossed],
-                                                   iters=ik_iters, smooth=smooth, tol=0.0, **sub)  # fmt: skip
-                    q0, p0, r0 = q0.clone(), p0.clone(), r0.clone()
-                    q0[crossed], p0[crossed], r0[crossed] = qa, pa, ra
                 with solver_stage("constraints"):
                     q0, p0, r0 = constrain(cfg, graph, eta, goal, q0, p0, r0, physics=constrained, smooth=smooth, tol=tol, **gkw)
             rounds = repair.cfg.repair_rounds if repair is not None and repair.repairs and smooth > 0 else 0

@@ -87,9 +87,9 @@ class PhysicsConfig:
     method: str = "constraints"  # "constraints" (the default): the plain solve, then the least change that meets them (.constrained); "penalty": the terms above
     rho: float = 3.0  # constraints: the augmented Lagrangian's penalty weight, relative to w_kp
     al_rounds: int = 6  # constraints: most multiplier updates (each after al_iters whole-window iterations)
+    al_extra: int = 3  # constraints: up to this many more rounds while a pair overlaps deeper than 1 cm
     al_iters: int = 4  # constraints: whole-window iterations per round
     al_tries: int = 8  # constraints: at most this many linearisations per round (> al_iters: a refused step does not use up an iteration)
-    al_apart: bool = True  # constraints: where the plain solution has a foot more than half through the other, the rounds start from the feet's goals kept apart
     al_smooth: float = 48.0  # constraints: the temporal prior's weight in the rounds, relative to the solve's (a smooth change)
     hover: float = 0.005  # constraints: a stance foot's lowest point at most this high [m] while the source's foot is down
     al_reach: int = 4  # constraints: frames this far from an active constraint move with it; the rest are held

@@ -335,23 +335,6 @@ def test_with_tries_a_refused_step_does_not_use_up_an_iteration():
     assert float(many["cost"].sum()) <= float(few["cost"].sum())  # each step taken lowers the cost
 
 
-def test_a_foot_more_than_half_through_the_other_is_found():
-    """:func:`~mer_models.solver.constrained.feet_through`: TALOS standing (feet apart), and with its hips
-    rolled in until its feet are in each other deeper than half a foot's width (where the least overlap
-    is on the far side); only the second is found, per sample."""
-    from mer_models.batch import batch_fk
-    from mer_models.solver.constrained import feet_through
-
-    P, model, q, base_pos, base_rot, pos, rot = _talos_posed(4)
-    s = load_robot("talos").skeleton
-    zero = torch.zeros(1, 4, s.num_nodes, dtype=torch.float64)
-    crossed = zero.clone()
-    hip = [s.node_names.index(n) for n in s.node_names if "leg_left_2" in n or "leg_right_2" in n]
-    crossed[..., hip[0]], crossed[..., hip[1]] = -0.1, 0.1  # the feet 15 cm into each other (TALOS's foot 16 cm wide)
-    both = batch_fk(P.graph.select(torch.tensor([0, 0])), torch.cat([zero, crossed]), base_pos.expand(2, -1, -1), base_rot.expand(2, -1, -1, -1))
-    assert feet_through(model, *both).tolist() == [False, True]
-
-
 def test_pair_depths_exact_near_contact_and_a_bound_beyond():
     """:func:`pair_depths` (separating-axis depth) on TALOS in random poses: every entry within the margin
     is each pair's separating-axis depth (:func:`contact_points`, both ways), the cheaper face bounds

@@ -120,9 +120,8 @@ def test_the_repair_takes_feet_the_goals_put_through_each_other_apart(method):
     """TALOS standing, both hips rolled in over frames 6-23 of 30 (its own motion: the goals are
     reachable exactly): the plain optimiser follows the feet through each other, the physical
     terms leave no pair deeper than 1 cm (the metric's sample points: the separating-axis depth
-    the repair holds bounds it from above). The constraint method starts its rounds from the feet's
-    goals kept apart there (``al_apart``): from the feet through each other its self rows would push
-    them on through (a round's least overlap is on the far side)."""
+    the repair holds bounds it from above). The constraint method's six rounds leave a pair 2 cm deep
+    there; the rounds that go on while a pair is 1 cm short of its margin (``al_extra``) part them."""
     from mer_data.kinematics.collision import shape_points
     from mer_models.retarget.clip import retarget_features, sequence_metrics, source_features
 
