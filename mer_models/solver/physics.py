@@ -87,7 +87,7 @@ class PhysicsConfig:
     method: str = "constraints"  # "constraints" (the default): the plain solve, then the least change that meets them (.constrained); "penalty": the terms above
     rho: float = 3.0  # constraints: the augmented Lagrangian's penalty weight, relative to w_kp
     al_rounds: int = 6  # constraints: most multiplier updates (each after al_iters whole-window iterations)
-    al_extra: int = 3  # constraints: up to this many more rounds while a pair overlaps deeper than 1 cm
+    al_extra: int = 3  # constraints: up to this many more rounds while a pair is 1 cm (constrained.DEEP_M) short of its margin
     al_iters: int = 4  # constraints: whole-window iterations per round
     al_tries: int = 8  # constraints: at most this many linearisations per round (> al_iters: a refused step does not use up an iteration)
     al_smooth: float = 48.0  # constraints: the temporal prior's weight in the rounds, relative to the solve's (a smooth change)
