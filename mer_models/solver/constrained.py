@@ -29,7 +29,8 @@ round) only before the rounds would stop. Frames a round's solve did not take ke
 measures (lowest points, self depths) into the next round; the first search is exact only near
 contact (the rest of its candidates keep a bound). The base
 is first raised where a foot is in the floor (a start the floor's linearisation holds from). After
-``al_rounds`` rounds, a pair still :data:`DEEP_M` short of its margin gets up to ``al_extra`` more. Joint
+``al_rounds`` rounds, a pair still :data:`DEEP_M` short of its margin gets up to ``al_extra`` more, each
+only after a round that brought it :data:`PROGRESS_M` nearer. Joint
 limits are the solver's projection; joint speed is the solver's coupled term and the feasibility
 pass after (:mod:`mer_models.retarget.feasible`) takes the rest exactly. What each choice measured:
 docs/decisions.md §Physics as constraints.
@@ -58,6 +59,7 @@ log = logging.getLogger(__name__)
 NEAR_M = 0.002  # pairs closer than self_margin + this are in a round's self rows (active or not)
 LIFT_MARGIN_M = -1e-5  # [m] the first lift stops this far short of the floor: its rows start active, never at their bound
 TOLERANCE_M = 0.002  # a constraint met to within this [m] needs no further round
+PROGRESS_M = 0.002  # [m] an extra round only after a round that brought the worst pair this much nearer its margin
 DEEP_M = 0.01  # [m] a pair this far short of its margin after the rounds gets up to al_extra more (the metric's deep self-penetration: 1 cm)
 SLIDE_TOL_M = 0.0015  # a stance foot's material point slower than this per frame [m] needs no further round
 
@@ -232,6 +234,7 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
     is_foot = torch.zeros(S, dtype=torch.bool, device=dev).index_fill(0, sole, True) if any(len(f) for f in feet) else torch.zeros(S, dtype=torch.bool, device=dev)
     dc = q.new_full((B, T, Kp), float("-inf"))  # each entry's last measure (+ self_margin)
     last, rnd, deep = c.al_rounds, -1, False  # deep: a pair short of its margin by more than DEEP_M at the last measure
+    deepest = float("inf")  # [m] how far the worst pair was short of its margin at the last measure
     while rnd < last:
         rnd += 1
         if rnd == last and stats is None and not (deep and last < c.al_rounds + c.al_extra):
@@ -277,9 +280,10 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
         if log.isEnabledFor(logging.DEBUG):
             log.debug("round %d: worst floor %.4f self %.4f hover %.4f slide %.4f m; frames unmet %d", rnd, *viol.clamp_min(0).amax((0, 1)).tolist(),
                       int((viol[..., :3] > TOLERANCE_M).any(-1).sum()))  # fmt: skip
-        deep = Kp > 0 and bool((d > DEEP_M).any())
-        if rnd == last and deep and last < c.al_rounds + c.al_extra:
-            last += 1  # a pair still 1 cm short of its margin: one more round
+        deepest, was = (float(d.amax()) if Kp and d.numel() else 0.0), deepest
+        deep = deepest > DEEP_M
+        if rnd == last and deep and last < c.al_rounds + c.al_extra and deepest < was - PROGRESS_M:
+            last += 1  # a pair still 1 cm short of its margin, and the last round brought it nearer: one more round
         if rnd == last or not bool((viol[..., :3] > TOLERANCE_M).any()):  # the constraints met (sliding is a penalty)
             break
         if rnd >= c.al_focus >= 0:  # the later rounds: only where a constraint is not met yet (the rest held)

@@ -87,7 +87,7 @@ class PhysicsConfig:
     method: str = "constraints"  # "constraints" (the default): the plain solve, then the least change that meets them (.constrained); "penalty": the terms above
     rho: float = 3.0  # constraints: the augmented Lagrangian's penalty weight, relative to w_kp
     al_rounds: int = 6  # constraints: most multiplier updates (each after al_iters whole-window iterations)
-    al_extra: int = 3  # constraints: up to this many more rounds while a pair is 1 cm (constrained.DEEP_M) short of its margin
+    al_extra: int = 3  # constraints: up to this many more rounds while a pair is 1 cm (constrained.DEEP_M) short of its margin and nearing it
     al_iters: int = 4  # constraints: whole-window iterations per round
     al_tries: int = 8  # constraints: at most this many linearisations per round (> al_iters: a refused step does not use up an iteration)
     al_smooth: float = 48.0  # constraints: the temporal prior's weight in the rounds, relative to the solve's (a smooth change)
@@ -266,8 +266,9 @@ class Physics:
         centre = torch.einsum("btsij,sj->btsi", rot[:, :, self.node], self.center) + pos[:, :, self.node]
         al = self.al or {}
         fs = al.get("floor")  # (B, T, S) the constraint method's shifts: held at or above them
-        bi, ti, si = (centre[..., 2] - self.radius < (0 if fs is None else fs)).nonzero(as_tuple=True)
-        kz = pos.new_zeros(B, T, S, k)
+        bottom = centre[..., 2] - self.radius  # (B, T, S) each bounding sphere's lowest point [m]
+        bi, ti, si = (bottom < (0 if fs is None else fs)).nonzero(as_tuple=True)
+        kz = bottom[..., None].expand(B, T, S, k).clone()  # a shape not looked at: its sphere's bottom, at or above the floor (its shift)
         kp = pos.new_zeros(B, T, S, k, 3)
         if len(bi):
             v = torch.einsum("eij,evj->evi", rot[bi, ti, self.node[si]], self.verts[si]) + pos[bi, ti, self.node[si]][:, None]

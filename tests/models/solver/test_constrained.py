@@ -447,3 +447,56 @@ def test_a_flat_face_on_the_plane_gives_its_centre_as_the_row_point():
     depth, point, normal, reach, other = face_points(model, pos, rot, faces)
     assert float(depth[0, 0, 0]) == pytest.approx(0.01)
     torch.testing.assert_close(point[0, 0, 0], torch.tensor([0.1, 0.05, -0.01], dtype=torch.float64), atol=1e-9, rtol=0)
+
+
+def test_a_floor_shift_under_a_body_high_above_it_makes_no_row():
+    """A shape whose bounding sphere is above its floor shift (the multiplier of a constraint no longer
+    acting) has no floor row: its vertices are not looked at and it reads as its sphere's bottom. (A
+    shape not looked at had read 0, so ``0 - shift < 0`` made an acting row at the world origin.)"""
+    T = 2
+    r, P, q = _problem("h1", T, 3)
+    model = collision_model(r)
+    base_pos = torch.tensor([0.0, 0.0, 2.0], dtype=torch.float64).expand(1, T, 3).clone()  # every body far above the floor
+    base_rot = torch.eye(3, dtype=torch.float64).expand(1, T, 3, 3).clone()
+    shift = torch.full((1, T, len(model.node)), 0.05, dtype=torch.float64)
+    al = {"floor": shift, "entries": None, "anchor": [None, None]}
+    phys = PhysicsInputs(model, None, 30.0, PhysicsConfig(w_self=0.0), al=al).build(P, 1.0)
+    qd = P.columns(q)
+    pos, rot, *_ = P.fit(qd, base_pos, base_rot)
+    h, g, cost = phys.linearise(pos, rot, qd, phys.freeze(pos, rot, qd), with_cost=True)
+    assert float(cost.abs().max()) == 0.0 and float(g.abs().max()) == 0.0 and float(h.abs().max()) == 0.0
+    base_pos[..., 2] = 0.02  # lowered until its feet reach below the shift: rows there, and only from real vertices
+    pos, rot, *_ = P.fit(qd, base_pos, base_rot)
+    h, g, cost = phys.linearise(pos, rot, qd, phys.freeze(pos, rot, qd), with_cost=True)
+    assert float(cost.max()) > 0
+
+
+def test_no_extra_round_after_a_round_that_left_the_deep_pair_as_deep(monkeypatch):
+    """The rounds after ``al_rounds`` (``al_extra``) run only while the last one brought the worst pair
+    ``PROGRESS_M`` nearer its margin: with solves that move nothing (TALOS's feet through each other,
+    hips rolled in, stay so) the rounds stop at ``al_rounds``; the crossed-feet test in test_physics is
+    the case where they go on and part the feet."""
+    import mer_models.solver.constrained as constrained
+    from mer_data.kinematics.collision import shape_points
+    from mer_models.retarget.clip import retarget_features
+
+    r = load_robot("talos")
+    s, geom = r.skeleton, collision_model(r)
+    F, J = 12, r.skeleton.num_nodes
+    q = np.zeros((F, J))
+    hip = [s.node_names.index(n) for n in s.node_names if "leg_left_2" in n or "leg_right_2" in n]
+    q[:, hip[0]], q[:, hip[1]] = -0.3, 0.3
+    low = float(shape_points(geom, torch.from_numpy(s.rest_positions), torch.eye(3, dtype=torch.float64).expand(J, 3, 3))[..., 2].min())
+    base = np.zeros((F, 3))
+    base[:, 2] = -low
+    feats = source_features(base, np.tile([1.0, 0, 0, 0], (F, 1)), q, s, 30.0)
+    calls = []
+
+    def still(cfg, graph, eta, goal, q, base_pos, base_rot, **kw):
+        calls.append(q.shape[1])
+        return q, base_pos, base_rot
+
+    monkeypatch.setattr(constrained, "coupled_lm_ik", still)
+    cfg = PhysicsConfig()
+    retarget_features(feats, s, s, method="optimize", fps=30.0, physics=cfg)
+    assert cfg.al_extra > 0 and len(calls) == cfg.al_rounds, calls
