@@ -28,7 +28,7 @@ from typing import Any
 
 import torch
 
-__all__ = ["shape_points", "lowest_points", "pair_depths", "pair_contacts", "contact_points"]
+__all__ = ["shape_points", "lowest_points", "pair_depths", "pair_contacts", "contact_points", "padded_counts"]
 
 
 def _t(a: Any, like: torch.Tensor) -> torch.Tensor:
@@ -143,7 +143,7 @@ _SIZES = (8, 16, 32, 64, 128, 256, 512)  # size classes of shapes' point and pla
 TIE_M = 1e-5  # [m] overlaps closer than this are a tie: the separating axis is then the first shape's (float32 rounding is ~1e-7 m)
 
 
-def _counts(x: torch.Tensor) -> torch.Tensor:
+def padded_counts(x: torch.Tensor) -> torch.Tensor:
     """(S,) how many of each shape's rows of ``x`` (S, N, k) come before its padding (copies of its
     first row at the end)."""
     same = (x == x[:, :1]).all(-1)
@@ -155,7 +155,7 @@ def _by_size(fn, pts, planes, node, pos, rot, f, sa, sb, **kw):
     ``sa``'s points and ``sb``'s planes they need, each group's arrays cut to its largest: the same
     result without computing the padding (a box is 8 vertices and 6 planes, padded to a 48-vertex
     hull's 48 and ~90)."""
-    npt, npl = _counts(pts), _counts(planes)
+    npt, npl = padded_counts(pts), padded_counts(planes)
     sizes = torch.tensor(_SIZES, device=npt.device)
     key = torch.bucketize(npt[sa], sizes) * (len(_SIZES) + 1) + torch.bucketize(npl[sb], sizes)
     keys = torch.unique(key)

@@ -233,11 +233,11 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
     low = q.new_zeros(B, T, S)
     is_foot = torch.zeros(S, dtype=torch.bool, device=dev).index_fill(0, sole, True) if any(len(f) for f in feet) else torch.zeros(S, dtype=torch.bool, device=dev)
     dc = q.new_full((B, T, Kp), float("-inf"))  # each entry's last measure (+ self_margin)
-    last, rnd, deep = c.al_rounds, -1, False  # deep: a pair short of its margin by more than DEEP_M at the last measure
-    deepest = float("inf")  # [m] how far the worst pair was short of its margin at the last measure
+    last, rnd = c.al_rounds, -1
+    deepest = 0.0  # [m] how far the worst pair was short of its margin at the last measure
     while rnd < last:
         rnd += 1
-        if rnd == last and stats is None and not (deep and last < c.al_rounds + c.al_extra):
+        if rnd == last and stats is None and not (deepest > DEEP_M and last < c.al_rounds + c.al_extra):
             break  # the last round's measures only fill stats (or decide on one more round): nothing moves after it
         m = None if bool(moved.all()) else moved.nonzero().flatten()
         low = _lows(model, pos, rot, s_floor, is_foot) if m is None else low.index_copy(1, m, _lows(model, pos[:, m], rot[:, m], s_floor[:, m], is_foot))  # (B, T, S)
@@ -280,9 +280,8 @@ def constrain(cfg: Any, graph: Any, eta: torch.Tensor, goal: torch.Tensor, q: to
         if log.isEnabledFor(logging.DEBUG):
             log.debug("round %d: worst floor %.4f self %.4f hover %.4f slide %.4f m; frames unmet %d", rnd, *viol.clamp_min(0).amax((0, 1)).tolist(),
                       int((viol[..., :3] > TOLERANCE_M).any(-1).sum()))  # fmt: skip
-        deepest, was = (float(d.amax()) if Kp and d.numel() else 0.0), deepest
-        deep = deepest > DEEP_M
-        if rnd == last and deep and last < c.al_rounds + c.al_extra and deepest < was - PROGRESS_M:
+        deepest, was = (float(d.amax()) if d.numel() else 0.0), (deepest if rnd else float("inf"))
+        if rnd == last and deepest > DEEP_M and last < c.al_rounds + c.al_extra and deepest < was - PROGRESS_M:
             last += 1  # a pair still 1 cm short of its margin, and the last round brought it nearer: one more round
         if rnd == last or not bool((viol[..., :3] > TOLERANCE_M).any()):  # the constraints met (sliding is a penalty)
             break

@@ -17,7 +17,7 @@ from typing import Any
 
 import torch
 
-from mer_data.kinematics.collision import contact_points
+from mer_data.kinematics.collision import contact_points, padded_counts
 
 __all__ = ["fix_faces", "face_points"]
 
@@ -76,8 +76,7 @@ def face_points(model: Any, pos: torch.Tensor, rot: torch.Tensor, faces: dict, v
     # the row's point: the vertices near the deepest, softly weighted (a face parallel to the plane has several
     # vertices at one depth; which of them is lowest flips with rounding, and with it the row's direction)
     # (the padding repeats vertex 0: left out, or a padded shape's vertex 0 would outweigh its tied neighbours)
-    pad = torch.zeros_like(dist, dtype=torch.bool)
-    pad[:, 1:] = (verts[s][:, 1:] == verts[s][:, :1]).all(-1)
+    pad = torch.arange(dist.shape[1], device=pos.device) >= padded_counts(verts)[s][:, None]
     w = torch.softmax(-(dist - signed[:, None]).masked_fill(pad, float("inf")) / POINT_SOFTNESS_M, -1)
     out_p[bi, ti, ki] = (w[..., None] * world).sum(-2)
     out_n[bi, ti, ki] = torch.einsum("eij,ej->ei", ro, faces["n"])
